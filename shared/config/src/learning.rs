@@ -1,0 +1,188 @@
+//! `learning.toml`: how the sway and yaw behaviours learn.
+
+use crate::{Dof, Invalid, Validate, in_range, join, positive};
+use serde::{Deserialize, Serialize};
+
+/// A value for each learned DOF.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PerDof<T> {
+    pub sway: T,
+    pub yaw: T,
+}
+
+impl<T> PerDof<T> {
+    pub fn both(value: T) -> Self
+    where
+        T: Clone,
+    {
+        PerDof {
+            sway: value.clone(),
+            yaw: value,
+        }
+    }
+
+    pub fn get(&self, dof: Dof) -> &T {
+        match dof {
+            Dof::Sway => &self.sway,
+            Dof::Yaw => &self.yaw,
+        }
+    }
+
+    pub fn get_mut(&mut self, dof: Dof) -> &mut T {
+        match dof {
+            Dof::Sway => &mut self.sway,
+            Dof::Yaw => &mut self.yaw,
+        }
+    }
+}
+
+/// A named set of learning parameters.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Preset {
+    /// The values of `config/learning.toml` (learning rates chosen by `trainer sweep`).
+    Default,
+    /// The paper's values: NAC alpha = 0.01 for both DOFs.
+    Paper,
+}
+
+impl std::str::FromStr for Preset {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "default" => Ok(Preset::Default),
+            "paper" => Ok(Preset::Paper),
+            other => Err(format!(
+                "unknown preset `{other}` (expected `default` or `paper`)"
+            )),
+        }
+    }
+}
+
+/// Policy and learner parameters for both behaviours.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LearningParams {
+    pub policy: PolicyParams,
+    pub nac: NacParams,
+    pub gpomdp: GpomdpParams,
+}
+
+impl LearningParams {
+    /// These parameters with a preset applied.
+    pub fn with_preset(mut self, preset: Preset) -> Self {
+        if preset == Preset::Paper {
+            self.nac.alpha = PerDof::both(0.01);
+        }
+        self
+    }
+}
+
+impl Validate for LearningParams {
+    fn validate(&self, key: &str) -> Result<(), Invalid> {
+        self.policy.validate(&join(key, "policy"))?;
+        self.nac.validate(&join(key, "nac"))?;
+        self.gpomdp.validate(&join(key, "gpomdp"))
+    }
+}
+
+/// The linear Gaussian policy `u ~ N(Kx, sigma^2)`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PolicyParams {
+    pub sigma: f64,
+    /// K at the start of step one, for (position, rate).
+    pub initial_gain: PerDof<[f64; 2]>,
+}
+
+impl Default for PolicyParams {
+    fn default() -> Self {
+        PolicyParams {
+            sigma: 0.1,
+            initial_gain: PerDof::both([0.0, 0.0]),
+        }
+    }
+}
+
+impl Validate for PolicyParams {
+    fn validate(&self, key: &str) -> Result<(), Invalid> {
+        in_range(key, "sigma", self.sigma, 1e-4, 10.0)?;
+        for dof in Dof::ALL {
+            for (i, k) in self.initial_gain.get(dof).iter().enumerate() {
+                in_range(key, &format!("initial_gain.{dof}[{i}]"), *k, -1e3, 1e3)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The Natural Actor-Critic with LSTD-Q(lambda) (paper, Algorithm 1).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NacParams {
+    /// Actor learning rate, per DOF (the rewards of sway and yaw differ in scale).
+    pub alpha: PerDof<f64>,
+    /// Forgetting factor applied to the critic's statistics after each actor update.
+    pub beta: f64,
+    /// Discount factor.
+    pub gamma: f64,
+    /// Eligibility rate.
+    pub lambda: f64,
+    /// The actor updates only when consecutive natural gradients are within this angle.
+    pub epsilon_deg: f64,
+    /// Tikhonov regularisation of the critic's solve, relative to the scale of A: A is singular at first.
+    pub ridge: f64,
+}
+
+impl Default for NacParams {
+    fn default() -> Self {
+        NacParams {
+            alpha: PerDof::both(0.01),
+            beta: 0.9,
+            gamma: 0.95,
+            lambda: 0.8,
+            epsilon_deg: 1.0,
+            ridge: 1e-6,
+        }
+    }
+}
+
+impl Validate for NacParams {
+    fn validate(&self, key: &str) -> Result<(), Invalid> {
+        positive(key, "alpha.sway", self.alpha.sway)?;
+        positive(key, "alpha.yaw", self.alpha.yaw)?;
+        in_range(key, "beta", self.beta, 0.0, 1.0)?;
+        in_range(key, "gamma", self.gamma, 0.0, 0.9999)?;
+        in_range(key, "lambda", self.lambda, 0.0, 1.0)?;
+        in_range(key, "epsilon_deg", self.epsilon_deg, 0.0, 180.0)?;
+        in_range(key, "ridge", self.ridge, 0.0, 1.0)
+    }
+}
+
+/// Baxter and Bartlett's policy gradient (OLPOMDP, the online form of GPOMDP): the Fig. 5 baseline.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GpomdpParams {
+    /// Step size, per DOF.
+    pub alpha: PerDof<f64>,
+    /// Discount of the eligibility trace (the bias-variance knob of GPOMDP).
+    pub beta: f64,
+}
+
+impl Default for GpomdpParams {
+    fn default() -> Self {
+        GpomdpParams {
+            alpha: PerDof::both(0.001),
+            beta: 0.95,
+        }
+    }
+}
+
+impl Validate for GpomdpParams {
+    fn validate(&self, key: &str) -> Result<(), Invalid> {
+        positive(key, "alpha.sway", self.alpha.sway)?;
+        positive(key, "alpha.yaw", self.alpha.yaw)?;
+        in_range(key, "beta", self.beta, 0.0, 1.0)
+    }
+}

@@ -1,0 +1,40 @@
+//! The vehicle and its world, as plain geometry and physics (no I/O, no randomness).
+//!
+//! - [`dynamics`]: the identified 3-DOF model of the paper's Table I and the kinematics in the pool frame.
+//! - [`cable`]: the straight cable on the pool floor.
+//! - [`camera`]: the downward pinhole camera as geometry: where the cable's line falls in the image
+//!   (rho, Theta, x_g, y_g), whether it is in view, and its rates. This is the ground truth the
+//!   renderer and perception of `vision` are checked against, and the ideal perception of the trainer.
+//! - [`thrusters`]: the thruster layout, mapping setpoints to the model's normalised forces.
+//! - [`linear`]: the decoupled linear sway and yaw dynamics in observation coordinates (for LQR).
+//!
+//! Conventions (DESIGN.md): pool frame x forward along the pool, y to the right seen from above, z down,
+//! heading psi from x towards y. Body frame x forward (surge u), y starboard (sway v), yaw rate r.
+
+pub mod cable;
+pub mod camera;
+pub mod dynamics;
+pub mod linear;
+pub mod thrusters;
+
+pub use cable::Cable;
+pub use camera::{CableLine, CableObservation, Camera};
+pub use dynamics::{Dynamics, Forces, Pose, PoseRate, VehicleState, Velocity};
+pub use thrusters::ThrusterLayout;
+
+/// Wraps an angle to (-pi, pi].
+pub fn wrap_pi(a: f64) -> f64 {
+    let w = a.rem_euclid(std::f64::consts::TAU);
+    if w > std::f64::consts::PI {
+        w - std::f64::consts::TAU
+    } else {
+        w
+    }
+}
+
+/// Wraps a line's angle to (-pi/2, pi/2]: a line has no direction, so angles are equal modulo pi.
+pub fn wrap_half_pi(a: f64) -> f64 {
+    use std::f64::consts::{FRAC_PI_2, PI};
+    let w = a.rem_euclid(PI);
+    if w > FRAC_PI_2 { w - PI } else { w }
+}
