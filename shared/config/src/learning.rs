@@ -41,7 +41,7 @@ impl<T> PerDof<T> {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Preset {
-    /// The values of `config/learning.toml` (learning rates chosen by `trainer sweep`).
+    /// The values of `config/learning.toml` (learning rates chosen by `trainer sweep`, see README).
     Default,
     /// The paper's values: NAC alpha = 0.01 for both DOFs.
     Paper,
@@ -117,6 +117,9 @@ impl Validate for PolicyParams {
     }
 }
 
+/// The longest history of natural gradients the angle test can look back on (`tau + 1 <= this`).
+pub const MAX_ANGLE_LAG: usize = 64;
+
 /// The Natural Actor-Critic with LSTD-Q(lambda) (paper, Algorithm 1).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -129,21 +132,33 @@ pub struct NacParams {
     pub gamma: f64,
     /// Eligibility rate.
     pub lambda: f64,
-    /// The actor updates only when consecutive natural gradients are within this angle.
+    /// The actor updates only when the natural gradient is within this angle of the one `tau` steps
+    /// earlier (paper: the angle between w_{t+1} and w_{t-tau}).
     pub epsilon_deg: f64,
+    /// The lag of the angle test, in steps beyond the previous one: 0 compares consecutive estimates.
+    /// Consecutive estimates share almost all their statistics and agree even when both are noise; a
+    /// lag compares estimates from different data, so the actor waits until the gradient is consistent.
+    pub tau: u32,
     /// Tikhonov regularisation of the critic's solve, relative to the scale of A: A is singular at first.
     pub ridge: f64,
+    /// Levenberg-Marquardt damping of the natural gradient, per transition in the statistics: adds
+    /// `damping * (transitions, forgotten like A)` to the diagonal of A's natural-gradient block, so a
+    /// gain the data say little about (a barely excited state) is not moved on noise. 0 is off.
+    pub damping: f64,
 }
 
 impl Default for NacParams {
     fn default() -> Self {
         NacParams {
-            alpha: PerDof::both(0.01),
+            // Chosen by `trainer sweep --algorithm nac --runs 100 --episodes 100` (README).
+            alpha: PerDof::both(2.15),
             beta: 0.9,
             gamma: 0.95,
             lambda: 0.8,
             epsilon_deg: 1.0,
+            tau: 0,
             ridge: 1e-6,
+            damping: 0.1,
         }
     }
 }
@@ -156,7 +171,9 @@ impl Validate for NacParams {
         in_range(key, "gamma", self.gamma, 0.0, 0.9999)?;
         in_range(key, "lambda", self.lambda, 0.0, 1.0)?;
         in_range(key, "epsilon_deg", self.epsilon_deg, 0.0, 180.0)?;
-        in_range(key, "ridge", self.ridge, 0.0, 1.0)
+        in_range(key, "tau", self.tau as f64, 0.0, (MAX_ANGLE_LAG - 1) as f64)?;
+        in_range(key, "ridge", self.ridge, 0.0, 1.0)?;
+        in_range(key, "damping", self.damping, 0.0, 1.0e6)
     }
 }
 
@@ -173,7 +190,11 @@ pub struct GpomdpParams {
 impl Default for GpomdpParams {
     fn default() -> Self {
         GpomdpParams {
-            alpha: PerDof::both(0.001),
+            // Chosen by `trainer sweep --algorithm gpomdp --runs 100 --episodes 100` (README).
+            alpha: PerDof {
+                sway: 0.01,
+                yaw: 0.0046,
+            },
             beta: 0.95,
         }
     }

@@ -17,16 +17,21 @@ fn shipped_scenario_equals_the_defaults() {
 }
 
 #[test]
-fn shipped_learning_parameters_load() {
+fn shipped_learning_parameters_equal_the_defaults() {
     let l: LearningParams = config::load(&repo_config("learning.toml")).unwrap();
-    // The learning rates are the sweep's choice; everything else is the paper's.
-    let d = LearningParams::default();
-    assert_eq!(l.policy, d.policy);
+    assert_eq!(l, LearningParams::default());
+    // The learning rates are the sweep's choice; the rest is the paper's.
     assert_eq!(
         (l.nac.beta, l.nac.gamma, l.nac.lambda, l.nac.epsilon_deg),
         (0.9, 0.95, 0.8, 1.0)
     );
-    assert_eq!(l.gpomdp.beta, d.gpomdp.beta);
+    assert_eq!(l.policy.sigma, 0.1);
+}
+
+#[test]
+fn the_paper_preset_uses_the_papers_learning_rate() {
+    let p = LearningParams::default().with_preset(config::Preset::Paper);
+    assert_eq!((p.nac.alpha.sway, p.nac.alpha.yaw), (0.01, 0.01));
 }
 
 #[test]

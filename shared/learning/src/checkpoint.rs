@@ -1,0 +1,827 @@
+//! What step one hands to step two: each learned DOF's policy, learner statistics, counters and
+//! parameters, in a file that is checked on the way in and replaced atomically on the way out.
+//!
+//! File layout (all integers little-endian):
+//!
+//! | bytes | content |
+//! |---|---|
+//! | 8  | magic `CTRKCKPT` |
+//! | 4  | format version (u32), [`FORMAT_VERSION`] |
+//! | 8  | payload length (u64) |
+//! | 4  | CRC-32 (IEEE) of the payload |
+//! | .. | payload: a [`Checkpoint`] encoded with `bincode` 2 (serde, standard configuration) |
+//!
+//! The payload holds plain arrays, not `nalgebra` types, so the format does not change with that
+//! crate's serialisation. It does embed the `config` crate's `LearningParams` and `QuadraticCost`,
+//! and bincode encodes fields by position: adding, removing or reordering a field of any type in the
+//! payload changes the format, and must bump [`FORMAT_VERSION`]. A reader refuses a file written by
+//! a newer format rather than guessing.
+//!
+//! Saving writes a temporary file in the target's directory, syncs it, renames it over the target and
+//! syncs the directory: a crash leaves either the old checkpoint or the new one, never a mix.
+
+use crate::learner::Algorithm;
+use config::{Dof, Invalid, LearningParams, QuadraticCost, Validate};
+use serde::{Deserialize, Serialize};
+use std::fs::{self, File, OpenOptions};
+use std::io::{self, Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// The first bytes of every checkpoint file.
+pub const MAGIC: [u8; 8] = *b"CTRKCKPT";
+/// The format this code writes, and the newest it reads.
+pub const FORMAT_VERSION: u32 = 1;
+/// Magic, version, payload length, CRC.
+pub const HEADER_LEN: usize = 8 + 4 + 8 + 4;
+
+/// The checkpoint of one or both learned DOFs.
+///
+/// The in-process trainer writes both; each behaviour service loads its own DOF
+/// ([`Checkpoint::load_dof`]) and saves its own (a file per service avoids two writers racing).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Checkpoint {
+    /// The sway agent, if saved.
+    pub sway: Option<AgentState>,
+    /// The yaw agent, if saved.
+    pub yaw: Option<AgentState>,
+}
+
+/// Everything needed to resume one DOF's agent (see [`crate::Agent::checkpoint`]).
+///
+/// Fields are public so that step two can, deliberately, resume with other parameters
+/// (e.g. a different learning rate on the vehicle) before calling [`crate::Agent::from_state`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AgentState {
+    /// The DOF this agent learns (and the checkpoint slot it belongs in).
+    pub dof: Dof,
+    /// The learning parameters in force (the agent uses its DOF's entries).
+    pub params: LearningParams,
+    /// The DOF's reward.
+    pub cost: QuadraticCost,
+    /// The observation box `|x_i| <= state_max[i]`, which also sets the failure reward.
+    pub state_max: [f64; 2],
+    /// The actor.
+    pub policy: PolicyState,
+    /// The learner's statistics.
+    pub learner: LearnerState,
+    /// Transitions completed (learning or not).
+    pub steps: u64,
+    /// Episodes completed.
+    pub episodes: u64,
+}
+
+impl AgentState {
+    /// The algorithm the learner state belongs to.
+    pub fn algorithm(&self) -> Algorithm {
+        match self.learner {
+            LearnerState::Nac(_) => Algorithm::Nac,
+            LearnerState::Gpomdp(_) => Algorithm::Gpomdp,
+        }
+    }
+
+    /// Checks that the state can drive an agent: valid parameters, a positive box and sigma, finite
+    /// numbers everywhere.
+    pub fn validate(&self) -> Result<(), AgentStateError> {
+        self.params.validate("params")?;
+        self.cost.validate("cost")?;
+        for (i, m) in self.state_max.iter().enumerate() {
+            if !(m.is_finite() && *m > 0.0) {
+                return Err(Invalid::new(
+                    format!("state_max[{i}]"),
+                    m,
+                    "must be a finite number > 0",
+                )
+                .into());
+            }
+        }
+        if !(self.policy.sigma.is_finite() && self.policy.sigma > 0.0) {
+            return Err(Invalid::new(
+                "policy.sigma",
+                self.policy.sigma,
+                "must be a finite number > 0",
+            )
+            .into());
+        }
+        finite("policy.gain", &self.policy.gain)?;
+        match &self.learner {
+            LearnerState::Nac(s) => {
+                for (i, row) in s.a.iter().enumerate() {
+                    finite(&format!("learner.a[{i}]"), row)?;
+                }
+                finite("learner.b", &s.b)?;
+                finite("learner.z", &s.z)?;
+                finite("learner.v", &s.v)?;
+                finite("learner.w", &s.w)?;
+                if s.w_history.len() > config::MAX_ANGLE_LAG {
+                    return Err(Invalid::new(
+                        "learner.w_history",
+                        s.w_history.len(),
+                        format!("holds at most {} estimates", config::MAX_ANGLE_LAG),
+                    )
+                    .into());
+                }
+                finite("learner.mass", &[s.mass])?;
+                for (i, w) in s.w_history.iter().enumerate() {
+                    finite(&format!("learner.w_history[{i}]"), w)?;
+                }
+            }
+            LearnerState::Gpomdp(s) => finite("learner.z", &s.z)?,
+        }
+        Ok(())
+    }
+}
+
+fn finite(key: &str, values: &[f64]) -> Result<(), AgentStateError> {
+    match values.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(Invalid::new(format!("{key}[{i}]"), values[i], "must be finite").into()),
+    }
+}
+
+/// Why an [`AgentState`] cannot drive an agent.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("invalid agent state: {0}")]
+pub struct AgentStateError(#[from] pub Invalid);
+
+/// The policy `u ~ N(Kx, sigma^2)`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PolicyState {
+    /// K for (position, rate).
+    pub gain: [f64; 2],
+    /// The exploration's standard deviation.
+    pub sigma: f64,
+}
+
+/// The learner's state; the variant names the algorithm.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum LearnerState {
+    /// NAC (boxed: its statistics are some 400 bytes, OLPOMDP's a few words).
+    Nac(Box<NacState>),
+    /// OLPOMDP.
+    Gpomdp(GpomdpState),
+}
+
+/// NAC's statistics for a 2-D state (6 unknowns `[v; w]`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NacState {
+    /// LSTD's `A`, row by row.
+    pub a: [[f64; 6]; 6],
+    /// LSTD's `b`.
+    pub b: [f64; 6],
+    /// The eligibility trace.
+    pub z: [f64; 6],
+    /// The critic's value weights for `[x1^2, x1 x2, x2^2, 1]`.
+    pub v: [f64; 4],
+    /// The last natural gradient.
+    pub w: [f64; 2],
+    /// The last natural gradients, oldest first, for the angle test (at most `MAX_ANGLE_LAG`).
+    pub w_history: Vec<[f64; 2]>,
+    /// Transitions in the statistics, forgotten like them.
+    pub mass: f64,
+    /// Transitions learned from.
+    pub steps: u64,
+    /// Actor updates made.
+    pub actor_updates: u64,
+}
+
+/// OLPOMDP's state.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GpomdpState {
+    /// The eligibility trace.
+    pub z: [f64; 2],
+    /// Transitions learned from.
+    pub steps: u64,
+    /// Actor updates made (one per transition).
+    pub actor_updates: u64,
+}
+
+/// What is wrong with a checkpoint file. Every variant names the file (`path`).
+#[derive(Debug, thiserror::Error)]
+#[allow(missing_docs)] // the fields are named for what they hold; the variants say what happened
+pub enum CheckpointError {
+    /// The file does not start with the checkpoint magic.
+    #[error("{} is not a cabletrack checkpoint (bad magic bytes)", path.display())]
+    NotACheckpoint { path: PathBuf },
+    /// The file ends before the header or the payload it announces.
+    #[error("checkpoint {} is truncated: {found} bytes, expected {expected}", path.display())]
+    Truncated {
+        path: PathBuf,
+        expected: u64,
+        found: u64,
+    },
+    /// The bytes do not check out.
+    #[error("checkpoint {} is corrupt: {corruption}", path.display())]
+    Corrupt {
+        path: PathBuf,
+        corruption: Corruption,
+    },
+    /// Written by a newer format than this build reads.
+    #[error("checkpoint {} has format version {found}; this build reads up to {supported}", path.display())]
+    NewerVersion {
+        path: PathBuf,
+        found: u32,
+        supported: u32,
+    },
+    /// The payload passed its checksum but does not decode as a checkpoint.
+    #[error("checkpoint {} does not decode", path.display())]
+    Decode {
+        path: PathBuf,
+        #[source]
+        source: bincode::error::DecodeError,
+    },
+    /// The checkpoint could not be encoded.
+    #[error("cannot encode checkpoint for {}", path.display())]
+    Encode {
+        path: PathBuf,
+        #[source]
+        source: bincode::error::EncodeError,
+    },
+    /// The checkpoint decodes but holds values an agent cannot run with.
+    #[error("checkpoint {} holds an invalid {dof} state", path.display())]
+    Invalid {
+        path: PathBuf,
+        dof: Dof,
+        #[source]
+        source: AgentStateError,
+    },
+    /// The checkpoint has no state for the DOF asked for.
+    #[error("checkpoint {} has no {dof} state", path.display())]
+    MissingDof { path: PathBuf, dof: Dof },
+    /// Reading or writing failed.
+    #[error("cannot {action} checkpoint {}", path.display())]
+    Io {
+        path: PathBuf,
+        action: &'static str,
+        #[source]
+        source: io::Error,
+    },
+}
+
+/// How a checkpoint's bytes fail their checks.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum Corruption {
+    /// The payload's CRC-32 is not the one in the header.
+    #[error("payload checksum {computed:#010x} does not match the stored {stored:#010x}")]
+    Checksum {
+        /// From the header.
+        stored: u32,
+        /// Of the payload as read.
+        computed: u32,
+    },
+    /// More bytes than the header announces.
+    #[error("{extra} bytes after the payload")]
+    TrailingBytes {
+        /// How many.
+        extra: u64,
+    },
+    /// A version number no format ever had (0).
+    #[error("format version {0} does not exist")]
+    UnknownVersion(u32),
+}
+
+impl Checkpoint {
+    /// A checkpoint holding one DOF.
+    pub fn single(state: AgentState) -> Self {
+        let mut c = Checkpoint::default();
+        c.insert(state);
+        c
+    }
+
+    /// Puts `state` in its DOF's slot, returning what was there.
+    pub fn insert(&mut self, state: AgentState) -> Option<AgentState> {
+        self.slot_mut(state.dof).replace(state)
+    }
+
+    /// The state of `dof`, if present.
+    pub fn get(&self, dof: Dof) -> Option<&AgentState> {
+        match dof {
+            Dof::Sway => self.sway.as_ref(),
+            Dof::Yaw => self.yaw.as_ref(),
+        }
+    }
+
+    /// Takes the state of `dof` out.
+    pub fn take(&mut self, dof: Dof) -> Option<AgentState> {
+        self.slot_mut(dof).take()
+    }
+
+    fn slot_mut(&mut self, dof: Dof) -> &mut Option<AgentState> {
+        match dof {
+            Dof::Sway => &mut self.sway,
+            Dof::Yaw => &mut self.yaw,
+        }
+    }
+
+    /// Writes the checkpoint to `path` atomically (see the module docs).
+    pub fn save(&self, path: &Path) -> Result<(), CheckpointError> {
+        self.save_with(path, |file, bytes| file.write_all(bytes))
+    }
+
+    /// [`save`](Self::save) with the write of the file's bytes injected, so a test can fail it half-way.
+    pub(crate) fn save_with(
+        &self,
+        path: &Path,
+        write: impl FnOnce(&mut File, &[u8]) -> io::Result<()>,
+    ) -> Result<(), CheckpointError> {
+        // Never replace a good checkpoint with one that would not load.
+        self.check(path)?;
+        let bytes = self.to_bytes().map_err(|source| CheckpointError::Encode {
+            path: path.to_owned(),
+            source,
+        })?;
+        write_atomically(path, &bytes, write)?;
+        tracing::debug!(path = %path.display(), bytes = bytes.len(), "checkpoint saved");
+        Ok(())
+    }
+
+    /// Reads and checks the checkpoint at `path`.
+    pub fn load(path: &Path) -> Result<Self, CheckpointError> {
+        let io_err = |action| {
+            move |source| CheckpointError::Io {
+                path: path.to_owned(),
+                action,
+                source,
+            }
+        };
+        let mut file = File::open(path).map_err(io_err("open"))?;
+        let mut header = Vec::with_capacity(HEADER_LEN);
+        (&mut file)
+            .take(HEADER_LEN as u64)
+            .read_to_end(&mut header)
+            .map_err(io_err("read"))?;
+        let magic_seen = header.len().min(MAGIC.len());
+        if header[..magic_seen] != MAGIC[..magic_seen] {
+            return Err(CheckpointError::NotACheckpoint {
+                path: path.to_owned(),
+            });
+        }
+        if header.len() < HEADER_LEN {
+            return Err(CheckpointError::Truncated {
+                path: path.to_owned(),
+                expected: HEADER_LEN as u64,
+                found: header.len() as u64,
+            });
+        }
+        let version = u32::from_le_bytes(header[8..12].try_into().expect("4 bytes"));
+        let payload_len = u64::from_le_bytes(header[12..20].try_into().expect("8 bytes"));
+        let stored_crc = u32::from_le_bytes(header[20..24].try_into().expect("4 bytes"));
+        // The version decides how to read the rest, so it is checked before anything else.
+        if version > FORMAT_VERSION {
+            return Err(CheckpointError::NewerVersion {
+                path: path.to_owned(),
+                found: version,
+                supported: FORMAT_VERSION,
+            });
+        }
+        let corrupt = |corruption| CheckpointError::Corrupt {
+            path: path.to_owned(),
+            corruption,
+        };
+        if version == 0 {
+            return Err(corrupt(Corruption::UnknownVersion(version)));
+        }
+        // Read at most one byte more than announced: enough to tell "trailing bytes" from "exact".
+        let mut payload = Vec::new();
+        (&mut file)
+            .take(payload_len.saturating_add(1))
+            .read_to_end(&mut payload)
+            .map_err(io_err("read"))?;
+        let found = payload.len() as u64;
+        if found < payload_len {
+            return Err(CheckpointError::Truncated {
+                path: path.to_owned(),
+                expected: HEADER_LEN as u64 + payload_len,
+                found: HEADER_LEN as u64 + found,
+            });
+        }
+        if found > payload_len {
+            let total = file.metadata().map_err(io_err("inspect"))?.len();
+            let extra = total.saturating_sub(HEADER_LEN as u64 + payload_len);
+            return Err(corrupt(Corruption::TrailingBytes { extra }));
+        }
+        let computed = crc32fast::hash(&payload);
+        if computed != stored_crc {
+            return Err(corrupt(Corruption::Checksum {
+                stored: stored_crc,
+                computed,
+            }));
+        }
+        let (checkpoint, used): (Checkpoint, usize) =
+            bincode::serde::decode_from_slice(&payload, bincode::config::standard()).map_err(
+                |source| CheckpointError::Decode {
+                    path: path.to_owned(),
+                    source,
+                },
+            )?;
+        if used != payload.len() {
+            return Err(corrupt(Corruption::TrailingBytes {
+                extra: (payload.len() - used) as u64,
+            }));
+        }
+        checkpoint.check(path)?;
+        Ok(checkpoint)
+    }
+
+    /// Each present state is valid and sits in its own DOF's slot.
+    fn check(&self, path: &Path) -> Result<(), CheckpointError> {
+        for dof in Dof::ALL {
+            if let Some(state) = self.get(dof) {
+                let checked = if state.dof != dof {
+                    let reason = format!("stored in the {dof} slot");
+                    Err(AgentStateError(Invalid::new("dof", state.dof, reason)))
+                } else {
+                    state.validate()
+                };
+                if let Err(source) = checked {
+                    return Err(CheckpointError::Invalid {
+                        path: path.to_owned(),
+                        dof,
+                        source,
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Loads `path` and takes the state of `dof` from it.
+    pub fn load_dof(path: &Path, dof: Dof) -> Result<AgentState, CheckpointError> {
+        Checkpoint::load(path)?
+            .take(dof)
+            .ok_or_else(|| CheckpointError::MissingDof {
+                path: path.to_owned(),
+                dof,
+            })
+    }
+
+    /// The file's bytes: header and payload.
+    fn to_bytes(&self) -> Result<Vec<u8>, bincode::error::EncodeError> {
+        let payload = bincode::serde::encode_to_vec(self, bincode::config::standard())?;
+        let mut bytes = Vec::with_capacity(HEADER_LEN + payload.len());
+        bytes.extend_from_slice(&MAGIC);
+        bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+        bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        bytes.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
+        bytes.extend_from_slice(&payload);
+        Ok(bytes)
+    }
+}
+
+/// Replaces `path` with `bytes`: temporary file, fsync, rename, fsync of the directory.
+/// On failure before the rename the temporary file is removed and the old file is untouched.
+fn write_atomically(
+    path: &Path,
+    bytes: &[u8],
+    write: impl FnOnce(&mut File, &[u8]) -> io::Result<()>,
+) -> Result<(), CheckpointError> {
+    let io_err = |action: &'static str| {
+        move |source| CheckpointError::Io {
+            path: path.to_owned(),
+            action,
+            source,
+        }
+    };
+    let name = path.file_name().ok_or_else(|| {
+        io_err("save")(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "the path has no file name",
+        ))
+    })?;
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    // Unique per process and call, so two savers never share a temporary file.
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let tmp = dir.join(format!(
+        ".{}.tmp-{}-{}",
+        name.to_string_lossy(),
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
+    ));
+    let staged = (|| {
+        let mut file = OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)
+            .map_err(io_err("create a temporary file for"))?;
+        write(&mut file, bytes).map_err(io_err("write"))?;
+        file.sync_all().map_err(io_err("sync"))?;
+        drop(file);
+        fs::rename(&tmp, path).map_err(io_err("rename the temporary file over"))
+    })();
+    if let Err(e) = staged {
+        if let Err(rm) = fs::remove_file(&tmp)
+            && rm.kind() != io::ErrorKind::NotFound
+        {
+            tracing::warn!(tmp = %tmp.display(), error = %rm, "cannot remove a temporary checkpoint file");
+        }
+        return Err(e);
+    }
+    // The rename is only durable once the directory entry is.
+    sync_dir(dir).map_err(io_err("sync the directory of"))
+}
+
+#[cfg(unix)]
+fn sync_dir(dir: &Path) -> io::Result<()> {
+    File::open(dir)?.sync_all()
+}
+
+#[cfg(not(unix))]
+fn sync_dir(_dir: &Path) -> io::Result<()> {
+    // Directories cannot be opened for syncing here; the rename itself is the best available.
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::agent::{Agent, StepKind};
+    use config::Rewards;
+
+    /// An agent that has learned something, so every field of its state is non-trivial.
+    fn trained(dof: Dof, algorithm: Algorithm) -> AgentState {
+        let params = LearningParams::default();
+        let cost = *Rewards::default().of(dof);
+        let mut agent = Agent::new(dof, algorithm, &params, cost, [0.5, 0.5], 3);
+        let mut x = [0.3, 0.0];
+        for t in 0..500 {
+            let kind = if t % 100 == 99 {
+                StepKind::TimeLimit
+            } else {
+                StepKind::Running
+            };
+            let u = agent.step(x, kind).action;
+            x = [
+                (0.95 * x[0] + 0.1 * u).clamp(-0.5, 0.5),
+                (0.5 * x[1] + 0.2 * u).clamp(-0.5, 0.5),
+            ];
+            if kind == StepKind::TimeLimit {
+                x = [-0.3, 0.1];
+            }
+        }
+        // Mid-episode: the trace is non-zero too.
+        agent.step(x, StepKind::Running);
+        agent.step(x, StepKind::Running);
+        agent.checkpoint()
+    }
+
+    fn both() -> Checkpoint {
+        let mut c = Checkpoint::single(trained(Dof::Sway, Algorithm::Nac));
+        c.insert(trained(Dof::Yaw, Algorithm::Gpomdp));
+        c
+    }
+
+    #[test]
+    fn round_trip_is_exact() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("step-one.ckpt");
+        let c = both();
+        let LearnerState::Nac(nac) = &c.sway.as_ref().unwrap().learner else {
+            panic!("sway runs NAC")
+        };
+        assert!(
+            nac.actor_updates > 0 && nac.z.iter().any(|z| *z != 0.0),
+            "the fixture must have learned"
+        );
+        c.save(&path).unwrap();
+        assert_eq!(Checkpoint::load(&path).unwrap(), c);
+        assert_eq!(
+            Checkpoint::load_dof(&path, Dof::Yaw).unwrap(),
+            *c.get(Dof::Yaw).unwrap()
+        );
+        // Saving again replaces the file.
+        let mut one = c.clone();
+        one.take(Dof::Yaw);
+        one.save(&path).unwrap();
+        assert_eq!(Checkpoint::load(&path).unwrap(), one);
+        assert!(matches!(
+            Checkpoint::load_dof(&path, Dof::Yaw),
+            Err(CheckpointError::MissingDof { dof: Dof::Yaw, .. })
+        ));
+    }
+
+    fn saved_bytes() -> (tempfile::TempDir, PathBuf, Vec<u8>) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.ckpt");
+        both().save(&path).unwrap();
+        let bytes = fs::read(&path).unwrap();
+        (dir, path, bytes)
+    }
+
+    #[test]
+    fn a_flipped_payload_byte_is_corrupt() {
+        let (_dir, path, mut bytes) = saved_bytes();
+        let i = HEADER_LEN + (bytes.len() - HEADER_LEN) / 2;
+        bytes[i] ^= 0x10;
+        fs::write(&path, &bytes).unwrap();
+        let err = Checkpoint::load(&path).unwrap_err();
+        assert!(
+            matches!(&err, CheckpointError::Corrupt { corruption: Corruption::Checksum { .. }, path: p } if *p == path),
+            "{err}"
+        );
+        // A flipped stored checksum is the same failure.
+        let (_dir, path, mut bytes) = saved_bytes();
+        bytes[21] ^= 0x01;
+        fs::write(&path, &bytes).unwrap();
+        assert!(matches!(
+            Checkpoint::load(&path),
+            Err(CheckpointError::Corrupt { .. })
+        ));
+    }
+
+    #[test]
+    fn a_short_file_is_truncated() {
+        let (_dir, path, bytes) = saved_bytes();
+        fs::write(&path, &bytes[..bytes.len() - 7]).unwrap();
+        match Checkpoint::load(&path).unwrap_err() {
+            CheckpointError::Truncated {
+                expected,
+                found,
+                path: p,
+            } => {
+                assert_eq!(
+                    (expected, found),
+                    (bytes.len() as u64, bytes.len() as u64 - 7)
+                );
+                assert_eq!(p, path);
+            }
+            other => panic!("expected Truncated, got {other}"),
+        }
+        // Shorter than the header, but the magic fits: truncated, not foreign.
+        fs::write(&path, &bytes[..10]).unwrap();
+        assert!(matches!(
+            Checkpoint::load(&path),
+            Err(CheckpointError::Truncated {
+                expected: 24,
+                found: 10,
+                ..
+            })
+        ));
+        fs::write(&path, &bytes[..3]).unwrap();
+        assert!(matches!(
+            Checkpoint::load(&path),
+            Err(CheckpointError::Truncated { found: 3, .. })
+        ));
+        // Longer than announced is not truncation.
+        let mut longer = bytes.clone();
+        longer.extend_from_slice(&[0; 5]);
+        fs::write(&path, &longer).unwrap();
+        assert!(matches!(
+            Checkpoint::load(&path),
+            Err(CheckpointError::Corrupt {
+                corruption: Corruption::TrailingBytes { extra: 5 },
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn a_newer_format_is_refused_with_both_versions() {
+        let (_dir, path, mut bytes) = saved_bytes();
+        bytes[8..12].copy_from_slice(&(FORMAT_VERSION + 1).to_le_bytes());
+        fs::write(&path, &bytes).unwrap();
+        match Checkpoint::load(&path).unwrap_err() {
+            CheckpointError::NewerVersion {
+                found, supported, ..
+            } => {
+                assert_eq!((found, supported), (FORMAT_VERSION + 1, FORMAT_VERSION));
+            }
+            other => panic!("expected NewerVersion, got {other}"),
+        }
+        bytes[8..12].copy_from_slice(&0u32.to_le_bytes());
+        fs::write(&path, &bytes).unwrap();
+        assert!(matches!(
+            Checkpoint::load(&path),
+            Err(CheckpointError::Corrupt {
+                corruption: Corruption::UnknownVersion(0),
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn a_foreign_file_is_not_a_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("learning.toml");
+        fs::write(&path, "[nac]\nbeta = 0.9\n").unwrap();
+        assert!(matches!(
+            Checkpoint::load(&path),
+            Err(CheckpointError::NotACheckpoint { .. })
+        ));
+        let (_dir, path, mut bytes) = saved_bytes();
+        bytes[0] = b'X';
+        fs::write(&path, &bytes).unwrap();
+        assert!(matches!(
+            Checkpoint::load(&path),
+            Err(CheckpointError::NotACheckpoint { .. })
+        ));
+        let missing = dir.path().join("none.ckpt");
+        assert!(matches!(
+            Checkpoint::load(&missing),
+            Err(CheckpointError::Io { action: "open", path, .. }) if path == missing
+        ));
+    }
+
+    #[test]
+    fn a_payload_that_is_not_a_checkpoint_is_a_decode_error_and_bad_values_are_invalid() {
+        let (_dir, path, _) = saved_bytes();
+        let write = |payload: &[u8]| {
+            let mut bytes = MAGIC.to_vec();
+            bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+            bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+            bytes.extend_from_slice(&crc32fast::hash(payload).to_le_bytes());
+            bytes.extend_from_slice(payload);
+            fs::write(&path, bytes).unwrap();
+        };
+        write(&[7, 7, 7]);
+        assert!(matches!(
+            Checkpoint::load(&path),
+            Err(CheckpointError::Decode { .. })
+        ));
+
+        let mut c = both();
+        c.sway.as_mut().unwrap().policy.sigma = -1.0;
+        write(&bincode::serde::encode_to_vec(&c, bincode::config::standard()).unwrap());
+        assert!(matches!(
+            Checkpoint::load(&path),
+            Err(CheckpointError::Invalid { dof: Dof::Sway, .. })
+        ));
+
+        let mut c = both();
+        c.yaw.as_mut().unwrap().dof = Dof::Sway;
+        write(&bincode::serde::encode_to_vec(&c, bincode::config::standard()).unwrap());
+        assert!(matches!(
+            Checkpoint::load(&path),
+            Err(CheckpointError::Invalid { dof: Dof::Yaw, .. })
+        ));
+    }
+
+    #[test]
+    fn a_save_failing_half_way_keeps_the_previous_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.ckpt");
+        let old = Checkpoint::single(trained(Dof::Sway, Algorithm::Nac));
+        old.save(&path).unwrap();
+        let new = both();
+        let err = new
+            .save_with(&path, |file, bytes| {
+                file.write_all(&bytes[..bytes.len() / 2])?;
+                Err(io::Error::new(
+                    io::ErrorKind::StorageFull,
+                    "disk full (injected)",
+                ))
+            })
+            .unwrap_err();
+        assert!(
+            matches!(
+                &err,
+                CheckpointError::Io {
+                    action: "write",
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        assert_eq!(Checkpoint::load(&path).unwrap(), old);
+        let names: Vec<_> = fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        assert_eq!(
+            names,
+            vec!["c.ckpt".to_string()],
+            "no temporary file may be left behind"
+        );
+        // And a later save goes through.
+        new.save(&path).unwrap();
+        assert_eq!(Checkpoint::load(&path).unwrap(), new);
+    }
+
+    #[test]
+    fn an_invalid_state_is_not_saved_over_a_good_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.ckpt");
+        let good = both();
+        good.save(&path).unwrap();
+        let mut bad = good.clone();
+        bad.yaw.as_mut().unwrap().policy.gain[1] = f64::NAN;
+        assert!(matches!(
+            bad.save(&path),
+            Err(CheckpointError::Invalid { dof: Dof::Yaw, .. })
+        ));
+        assert_eq!(Checkpoint::load(&path).unwrap(), good);
+    }
+
+    #[test]
+    fn the_header_is_the_documented_layout() {
+        let (_dir, _path, bytes) = saved_bytes();
+        assert_eq!(&bytes[..8], b"CTRKCKPT");
+        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 1);
+        let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
+        assert_eq!(len as usize, bytes.len() - HEADER_LEN);
+        let crc = u32::from_le_bytes(bytes[20..24].try_into().unwrap());
+        assert_eq!(crc, crc32fast::hash(&bytes[HEADER_LEN..]));
+    }
+}
