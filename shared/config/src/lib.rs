@@ -12,12 +12,19 @@
 mod error;
 mod learning;
 mod scenario;
+mod vision;
 
 pub use error::{ConfigError, Invalid};
-pub use learning::{GpomdpParams, LearningParams, NacParams, PerDof, PolicyParams, Preset};
+pub use learning::{
+    GpomdpParams, LearningParams, MAX_ANGLE_LAG, NacParams, PerDof, PolicyParams, Preset,
+};
 pub use scenario::{
     CableParams, CameraParams, DofModel, MAX_THRUSTERS, ModelParams, ObservationLimits, PoolParams,
     QuadraticCost, ResetParams, Rewards, Scenario, SurgeParams, ThrusterParams, Thrusters, Timing,
+};
+pub use vision::{
+    BlurParams, CablePolarity, ClutterParams, LightingParams, NoiseParams, PerceptionParams,
+    RenderParams, TextureParams, TrackingParams,
 };
 
 use serde::de::DeserializeOwned;

@@ -1,6 +1,6 @@
 //! `scenario.toml`: the vehicle, its world and the task.
 
-use crate::{Invalid, Validate, finite, in_range, join, positive};
+use crate::{Invalid, PerceptionParams, RenderParams, Validate, finite, in_range, join, positive};
 use serde::{Deserialize, Serialize};
 
 /// Everything about the task except how the behaviours learn.
@@ -17,6 +17,8 @@ pub struct Scenario {
     pub reward: Rewards,
     pub surge: SurgeParams,
     pub thrusters: Thrusters,
+    pub render: RenderParams,
+    pub perception: PerceptionParams,
 }
 
 impl Validate for Scenario {
@@ -30,7 +32,9 @@ impl Validate for Scenario {
         self.observation.validate(&join(key, "observation"))?;
         self.reward.validate(&join(key, "reward"))?;
         self.surge.validate(&join(key, "surge"))?;
-        self.thrusters.validate(&join(key, "thrusters"))
+        self.thrusters.validate(&join(key, "thrusters"))?;
+        self.render.validate(&join(key, "render"))?;
+        self.perception.validate(&join(key, "perception"))
     }
 }
 
