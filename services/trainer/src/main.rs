@@ -1,0 +1,570 @@
+//! `trainer`: step one of the two-step learning, in one process. See `trainer --help`.
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand};
+use config::{Dof, PerDof, Preset};
+use learning::Algorithm;
+use learning::checkpoint::Checkpoint;
+use std::path::PathBuf;
+use std::time::Instant;
+use trainer::experiment::{self, Curve};
+use trainer::figures::{Alphas, Fig5, PolicyMap, write_json};
+use trainer::progress::Progress;
+use trainer::world::{EpisodeResult, World};
+use trainer::{EyesKind, Setup};
+
+#[derive(Parser)]
+#[command(
+    version,
+    about = "Step one of two-step NAC learning for cable tracking: learn in simulation, in one process."
+)]
+struct Cli {
+    /// Directory holding scenario.toml and learning.toml.
+    #[arg(long, global = true, default_value = "config")]
+    config: PathBuf,
+    /// Learning parameters: `default` (swept learning rates) or `paper` (NAC alpha = 0.01).
+    #[arg(long, global = true, default_value = "default")]
+    preset: Preset,
+    /// How the behaviours see the cable: the exact geometry, or rendered images and perception.
+    #[arg(long, global = true, value_enum, default_value = "ideal")]
+    eyes: EyesKind,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// The paper's Fig. 5: NAC against Baxter and Bartlett's policy gradient over independent runs.
+    Fig5 {
+        #[arg(long, default_value_t = 100)]
+        runs: usize,
+        #[arg(long, default_value_t = 100)]
+        episodes: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long, default_value = "out/fig5")]
+        out: PathBuf,
+        /// Episodes over which the LQR limit's mean return is measured.
+        #[arg(long, default_value_t = 4000)]
+        limit_episodes: usize,
+    },
+    /// The learning-rate sweep behind the defaults of config/learning.toml.
+    Sweep {
+        #[arg(long, default_value = "nac")]
+        algorithm: Algorithm,
+        #[arg(long, default_value_t = 20)]
+        runs: usize,
+        #[arg(long, default_value_t = 100)]
+        episodes: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Comma-separated learning rates (default: a log grid suited to the algorithm).
+        #[arg(long, value_delimiter = ',')]
+        alphas: Vec<f64>,
+        /// Override NAC's natural-gradient damping for this sweep.
+        #[arg(long)]
+        damping: Option<f64>,
+        #[arg(long, default_value = "out/sweep")]
+        out: PathBuf,
+    },
+    /// Step one: learn both behaviours in simulation and write the checkpoint step two loads.
+    Train {
+        #[arg(long, default_value_t = 100)]
+        episodes: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long, default_value = "out/step-one.ckpt")]
+        checkpoint: PathBuf,
+        #[arg(long, default_value = "nac")]
+        algorithm: Algorithm,
+        /// Also save the checkpoint every this many episodes (0: only at the end).
+        #[arg(long, default_value_t = 0)]
+        every: usize,
+        /// Print a progress line every this many episodes.
+        #[arg(long, default_value_t = 10)]
+        log_every: usize,
+    },
+    /// Figs. 6 and 7: each policy's state-to-action map, from a checkpoint, as PNG and JSON.
+    PolicyMap {
+        #[arg(long)]
+        checkpoint: PathBuf,
+        #[arg(long, default_value = "out/policy-map")]
+        out: PathBuf,
+        /// Cells per axis.
+        #[arg(long, default_value_t = 41)]
+        cells: usize,
+    },
+    /// The mean return of fixed gains (no learning) under the task's resets and exploration noise.
+    Evaluate {
+        /// Sway gain K (x_g, dx_g/dt), e.g. `7.7,9.2`.
+        #[arg(
+            long,
+            value_delimiter = ',',
+            required = true,
+            allow_negative_numbers = true
+        )]
+        sway: Vec<f64>,
+        /// Yaw gain K (Theta, dTheta/dt).
+        #[arg(
+            long,
+            value_delimiter = ',',
+            required = true,
+            allow_negative_numbers = true
+        )]
+        yaw: Vec<f64>,
+        #[arg(long, default_value_t = 2000)]
+        episodes: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Benchmarks: simulated steps per second of one learner pair plus the model (single thread), and
+    /// the wall time of the full Fig. 5 experiment; medians over repeats.
+    Bench {
+        #[arg(long, default_value_t = 5)]
+        repeats: usize,
+        /// Episodes per single-thread measurement.
+        #[arg(long, default_value_t = 200)]
+        episodes: usize,
+    },
+    /// The LQR-optimal linear policy of each DOF and its mean return: the yardstick for Fig. 5.
+    Limit {
+        #[arg(long, default_value_t = 4000)]
+        episodes: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Also write the result as JSON.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
+}
+
+fn main() {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .init();
+    if let Err(err) = run(Cli::parse()) {
+        eprintln!("trainer: error: {err:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    let setup = Setup::load(&cli.config, cli.preset)?.with_eyes(cli.eyes)?;
+    match cli.command {
+        Command::Fig5 {
+            runs,
+            episodes,
+            seed,
+            out,
+            limit_episodes,
+        } => fig5(&setup, runs, episodes, seed, &out, limit_episodes),
+        Command::Sweep {
+            algorithm,
+            runs,
+            episodes,
+            seed,
+            alphas,
+            damping,
+            out,
+        } => {
+            let mut setup = setup;
+            if let Some(d) = damping {
+                if !(d.is_finite() && d >= 0.0) {
+                    bail!("--damping: {d} must be a finite number >= 0");
+                }
+                setup.learning.nac.damping = d;
+            }
+            sweep(&setup, algorithm, runs, episodes, seed, alphas, &out)
+        }
+        Command::Train {
+            episodes,
+            seed,
+            checkpoint,
+            algorithm,
+            every,
+            log_every,
+        } => train(
+            &setup,
+            episodes,
+            seed,
+            &checkpoint,
+            algorithm,
+            every,
+            log_every,
+        ),
+        Command::Evaluate {
+            sway,
+            yaw,
+            episodes,
+            seed,
+        } => {
+            if sway.len() != 2 || yaw.len() != 2 {
+                bail!("--sway and --yaw each take two gains, e.g. --yaw 10.8,3.3");
+            }
+            let gains = PerDof {
+                sway: [sway[0], sway[1]],
+                yaw: [yaw[0], yaw[1]],
+            };
+            let progress = Progress::new("evaluate", episodes.div_ceil(50) as u64);
+            let eval = experiment::evaluate(&setup, gains, episodes, seed, &progress);
+            progress.finish();
+            for dof in Dof::ALL {
+                println!(
+                    "{dof:>4}: K = [{:8.4}, {:8.4}]  mean return {:9.4} ± {:.4}",
+                    gains.get(dof)[0],
+                    gains.get(dof)[1],
+                    eval.mean_return.get(dof),
+                    eval.std_error.get(dof)
+                );
+            }
+            println!(
+                "cable lost in {:.2}% of {} episodes",
+                100.0 * eval.lost_fraction,
+                eval.episodes
+            );
+            Ok(())
+        }
+        Command::PolicyMap {
+            checkpoint,
+            out,
+            cells,
+        } => policy_map(&setup, &checkpoint, &out, cells),
+        Command::Bench { repeats, episodes } => bench(&setup, repeats.max(1), episodes.max(1)),
+        Command::Limit {
+            episodes,
+            seed,
+            json,
+        } => {
+            let progress = Progress::new("limit", episodes.div_ceil(50) as u64);
+            let limit = experiment::limit(&setup, episodes, seed, &progress)?;
+            progress.finish();
+            for dof in Dof::ALL {
+                println!(
+                    "{dof:>4}: K = [{:8.4}, {:8.4}]  mean return {:9.4} ± {:.4}",
+                    limit.gain.get(dof)[0],
+                    limit.gain.get(dof)[1],
+                    limit.mean_return.get(dof),
+                    limit.std_error.get(dof)
+                );
+            }
+            println!(
+                "cable lost in {:.2}% of {} episodes",
+                100.0 * limit.lost_fraction,
+                limit.episodes
+            );
+            if let Some(path) = json {
+                write_json(&path, &limit).with_context(|| format!("writing {}", path.display()))?;
+            }
+            Ok(())
+        }
+    }
+}
+
+fn fig5(
+    setup: &Setup,
+    runs: usize,
+    episodes: usize,
+    seed: u64,
+    out: &std::path::Path,
+    limit_episodes: usize,
+) -> Result<()> {
+    if runs == 0 || episodes == 0 {
+        bail!("--runs and --episodes must be at least 1");
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let start = Instant::now();
+    let mut curves = Vec::new();
+    for algorithm in Algorithm::ALL {
+        let progress = Progress::new(algorithm.name(), runs as u64);
+        let results = experiment::learning_runs(setup, algorithm, runs, episodes, seed, &progress);
+        progress.finish();
+        curves.push(PerDof {
+            sway: Curve::of(&results, Dof::Sway),
+            yaw: Curve::of(&results, Dof::Yaw),
+        });
+        tracing::info!(
+            "{algorithm}: {runs} runs x {episodes} episodes, late cable losses {:.1}%",
+            100.0 * experiment::late_loss_fraction(&results, 10)
+        );
+    }
+    let progress = Progress::new("limit", limit_episodes.div_ceil(50) as u64);
+    let limit = experiment::limit(setup, limit_episodes, seed, &progress)?;
+    progress.finish();
+    let gpomdp = curves.pop().expect("two algorithms");
+    let nac = curves.pop().expect("two algorithms");
+    let fig = Fig5 {
+        episodes,
+        runs,
+        seed,
+        nac,
+        gpomdp,
+        limit: limit.mean_return,
+        alpha: Alphas {
+            nac: setup.alpha(Algorithm::Nac),
+            gpomdp: setup.alpha(Algorithm::Gpomdp),
+        },
+    };
+    let json = out.join("fig5.json");
+    write_json(&json, &fig).with_context(|| format!("writing {}", json.display()))?;
+    let png = out.join("fig5.png");
+    fig.figure().save_png(&png)?;
+    let elapsed = start.elapsed().as_secs_f64();
+    for dof in Dof::ALL {
+        let late = (episodes / 10).max(1);
+        println!(
+            "{dof:>4}: last {late} episodes' mean return: NAC {:9.4}, OLPOMDP {:9.4}, LQR limit {:9.4}; NAC within 10% of the limit from episode {}",
+            fig.nac.get(dof).tail_mean(late),
+            fig.gpomdp.get(dof).tail_mean(late),
+            fig.limit.get(dof),
+            fig.nac
+                .get(dof)
+                .first_within(*fig.limit.get(dof), 0.1, 5)
+                .map_or("-".into(), |e| e.to_string()),
+        );
+    }
+    println!("Fig. 5 ({runs} runs x {episodes} episodes, both algorithms) in {elapsed:.2} s");
+    println!("wrote {} and {}", json.display(), png.display());
+    Ok(())
+}
+
+fn train(
+    setup: &Setup,
+    episodes: usize,
+    seed: u64,
+    path: &std::path::Path,
+    algorithm: Algorithm,
+    every: usize,
+    log_every: usize,
+) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let mut world = World::new(
+        &setup.scenario,
+        &setup.learning,
+        algorithm,
+        setup.eyes(seed),
+        seed,
+    );
+    let save = |world: &World| -> Result<()> {
+        let agents = world.agents();
+        let mut ckpt = Checkpoint::single(agents.sway.checkpoint());
+        ckpt.insert(agents.yaw.checkpoint());
+        ckpt.save(path)
+            .with_context(|| format!("saving the checkpoint {}", path.display()))
+    };
+    let start = Instant::now();
+    let mut window: Vec<EpisodeResult> = Vec::new();
+    println!("episode |  yaw return | sway return | lost | yaw K              | sway K");
+    for e in 1..=episodes {
+        window.push(world.run_episode());
+        if log_every > 0 && (e % log_every == 0 || e == episodes) {
+            let mean = |dof: Dof| {
+                window.iter().map(|r| *r.returns.get(dof)).sum::<f64>() / window.len() as f64
+            };
+            let last = window.last().expect("one episode at least");
+            println!(
+                "{e:7} | {:11.3} | {:11.4} | {:4} | [{:7.3}, {:7.3}] | [{:7.3}, {:7.3}]",
+                mean(Dof::Yaw),
+                mean(Dof::Sway),
+                window.iter().filter(|r| r.lost).count(),
+                last.gains.yaw[0],
+                last.gains.yaw[1],
+                last.gains.sway[0],
+                last.gains.sway[1],
+            );
+            window.clear();
+        }
+        if every > 0 && e % every == 0 {
+            save(&world)?;
+        }
+    }
+    save(&world)?;
+    println!(
+        "{episodes} episodes in {:.2} s; checkpoint written to {}",
+        start.elapsed().as_secs_f64(),
+        path.display()
+    );
+    Ok(())
+}
+
+fn policy_map(
+    setup: &Setup,
+    path: &std::path::Path,
+    out: &std::path::Path,
+    cells: usize,
+) -> Result<()> {
+    let ckpt = Checkpoint::load(path)?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let mut panels = Vec::new();
+    let mut maps = Vec::new();
+    for dof in [Dof::Sway, Dof::Yaw] {
+        let Some(state) = ckpt.get(dof) else {
+            tracing::warn!("{} holds no {dof} policy", path.display());
+            continue;
+        };
+        let gain = state.policy.gain;
+        let map = PolicyMap::new(dof, gain, &setup.scenario, cells.max(2));
+        let fig = if dof == Dof::Sway { "Fig. 6" } else { "Fig. 7" };
+        panels.push(map.panel(&format!("{fig}, {dof} policy")));
+        maps.push(map);
+    }
+    if maps.is_empty() {
+        bail!("{} holds no policy", path.display());
+    }
+    let json = out.join("policy-map.json");
+    write_json(&json, &maps).with_context(|| format!("writing {}", json.display()))?;
+    let png = out.join("policy-map.png");
+    plot::Figure::new(panels, 2).save_png(&png)?;
+    println!("wrote {} and {}", json.display(), png.display());
+    Ok(())
+}
+
+fn bench(setup: &Setup, repeats: usize, episodes: usize) -> Result<()> {
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    // Steps per second of one loop on one thread: fixed gains with learning off (the model, the
+    // camera geometry, the allocator: the baseline) against both NAC learners on top.
+    let steps_per_s = |learning: bool| {
+        let mut rates = Vec::new();
+        for r in 0..repeats {
+            let seed = r as u64 + 1;
+            let mut world = if learning {
+                World::new(
+                    &setup.scenario,
+                    &setup.learning,
+                    Algorithm::Nac,
+                    setup.eyes(seed),
+                    seed,
+                )
+            } else {
+                let gains = PerDof {
+                    sway: [7.7, 9.2],
+                    yaw: [10.8, 3.3],
+                };
+                let agents = experiment::fixed_agents(setup, gains, seed);
+                World::with_agents(&setup.scenario, agents, setup.eyes(seed), seed)
+            };
+            let start = Instant::now();
+            let steps: u64 = (0..episodes)
+                .map(|_| world.run_episode().steps as u64)
+                .sum();
+            rates.push(steps as f64 / start.elapsed().as_secs_f64());
+        }
+        median(rates)
+    };
+    let baseline = steps_per_s(false);
+    let learners = steps_per_s(true);
+    println!("single thread, median of {repeats} runs of {episodes} episodes:");
+    println!("  model + camera + allocator, fixed policies: {baseline:>12.0} steps/s");
+    println!(
+        "  ... with the NAC sway and yaw learners:     {learners:>12.0} steps/s ({:.2}x the baseline's time per step)",
+        baseline / learners
+    );
+    let mut walls = Vec::new();
+    for r in 0..repeats {
+        let start = Instant::now();
+        let hidden = Progress::hidden();
+        for algorithm in Algorithm::ALL {
+            experiment::learning_runs(setup, algorithm, 100, 100, r as u64 + 1, &hidden);
+        }
+        experiment::limit(setup, 4000, r as u64 + 1, &hidden)?;
+        walls.push(start.elapsed().as_secs_f64());
+    }
+    println!(
+        "full Fig. 5 (100 runs x 100 episodes, NAC and OLPOMDP, plus the limit) on {} cores: median {:.2} s (min {:.2}, max {:.2})",
+        std::thread::available_parallelism().map_or(1, |p| p.get()),
+        median(walls.clone()),
+        walls.iter().copied().fold(f64::INFINITY, f64::min),
+        walls.iter().copied().fold(0.0, f64::max),
+    );
+    Ok(())
+}
+
+fn sweep(
+    setup: &Setup,
+    algorithm: Algorithm,
+    runs: usize,
+    episodes: usize,
+    seed: u64,
+    alphas: Vec<f64>,
+    out: &std::path::Path,
+) -> Result<()> {
+    let alphas = if alphas.is_empty() {
+        default_grid(algorithm)
+    } else {
+        alphas
+    };
+    if let Some(bad) = alphas.iter().find(|a| !(a.is_finite() && **a > 0.0)) {
+        bail!("--alphas: {bad} is not a positive learning rate");
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let progress = Progress::new("sweep", (alphas.len() * runs) as u64);
+    let rows = experiment::sweep(setup, algorithm, &alphas, runs, episodes, seed, &progress);
+    progress.finish();
+    println!(
+        "{algorithm} learning-rate sweep: {runs} runs x {episodes} episodes per rate (returns: mean over all episodes / over the last quarter)"
+    );
+    println!("| alpha | yaw mean | yaw late | sway mean | sway late | late losses |");
+    println!("|---:|---:|---:|---:|---:|---:|");
+    for r in &rows {
+        println!(
+            "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.1}% |",
+            r.alpha,
+            r.mean_return.yaw,
+            r.late_return.yaw,
+            r.mean_return.sway,
+            r.late_return.sway,
+            100.0 * r.late_lost
+        );
+    }
+    let best = experiment::best_alpha(&rows);
+    println!(
+        "best (highest late return): yaw {}, sway {}",
+        best.yaw, best.sway
+    );
+    let path = out.join(format!("sweep-{algorithm}.json"));
+    #[derive(serde::Serialize)]
+    struct SweepFile<'a> {
+        algorithm: Algorithm,
+        runs: usize,
+        episodes: usize,
+        seed: u64,
+        rows: &'a [experiment::SweepRow],
+        best: PerDof<f64>,
+    }
+    write_json(
+        &path,
+        &SweepFile {
+            algorithm,
+            runs,
+            episodes,
+            seed,
+            rows: &rows,
+            best,
+        },
+    )
+    .with_context(|| format!("writing {}", path.display()))?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+/// Log-spaced learning rates, three per decade, over the range where each algorithm's updates go
+/// from negligible to unstable on this task.
+fn default_grid(algorithm: Algorithm) -> Vec<f64> {
+    let (from, to) = match algorithm {
+        Algorithm::Nac => (-3, 1),
+        Algorithm::Gpomdp => (-4, 0),
+    };
+    (from * 3..=to * 3)
+        .map(|k| 10f64.powf(k as f64 / 3.0))
+        .map(|a| (a * 1e6).round() / 1e6)
+        .collect()
+}
