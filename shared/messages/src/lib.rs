@@ -1,0 +1,31 @@
+//! The IPC contract: read this first to know what the processes say to each other.
+//!
+//! Every topic is an iceoryx2 publish-subscribe service of fixed-layout (`#[repr(C)]`) payloads plus
+//! an event service of the same name: a publish is followed by a notification, which wakes the
+//! subscribers blocked in their WaitSet. Topic names carry the endpoint:
+//! `cabletrack/<sim|vehicle>/<topic>`, so the simulated mesh and the vehicle never see each other.
+//!
+//! ```text
+//!  simulator ──VehicleState──▶ camera ──CameraFrame──▶ perception ──CableObservation──┬─▶ sway ─┐
+//!      ▲                                                                               ├─▶ yaw ──┤ DofCommand
+//!      │                                                                               └─▶ surge ┘
+//!      └──────────────────ThrusterSetpoints◀──────── thruster-allocator ◀─────────────────────────┘
+//! ```
+//!
+//! Every payload starts with a [`Stamp`]: the step's sequence number (global, increasing across
+//! episodes), its episode and step, the time, and the episode status. A consumer matches inputs by
+//! `seq` and never mixes steps.
+//!
+//! QoS is fixed here, for every process: iceoryx2 takes a service's QoS from whichever process creates
+//! it first, so the services are only ever opened through [`ports`].
+
+pub mod payload;
+pub mod ports;
+pub mod topics;
+
+pub use payload::{
+    CableObservationMsg, CableTruth, CameraFrameHeader, DofCommand, LearningStats, Stamp,
+    StepStatus, ThrusterSetpoints, VehicleStateMsg,
+};
+pub use ports::{FrameInbox, FrameOutbox, Inbox, Outbox, PortError};
+pub use topics::{Endpoint, Qos, Topic};

@@ -1,0 +1,314 @@
+//! Opening topics: the only way a process reaches another, so every service is created with the QoS
+//! of [`crate::topics`]. An [`Outbox`] publishes and then notifies; an [`Inbox`] receives and exposes
+//! its listener so a process can block on it in a WaitSet.
+
+use crate::payload::CameraFrameHeader;
+use crate::topics::{Endpoint, Topic};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::PortFactory as _;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+use std::fmt::Debug;
+
+type Ipc = ipc::Service;
+type FrameFactory = PortFactory<Ipc, [u8], CameraFrameHeader>;
+
+/// A port could not be opened or used; names the service.
+#[derive(Debug, thiserror::Error)]
+#[error("{what} on `{service}`: {reason}")]
+pub struct PortError {
+    pub service: String,
+    pub what: &'static str,
+    pub reason: String,
+}
+
+fn fail<'a>(service: &'a str, what: &'static str) -> impl FnOnce(&dyn Debug) -> PortError + 'a {
+    move |e| PortError {
+        service: service.to_owned(),
+        what,
+        reason: format!("{e:?}"),
+    }
+}
+
+/// A fixed-size payload that can be sent between processes.
+pub trait Payload: Debug + Copy + Default + ZeroCopySend + IceoryxSend + 'static {}
+impl<T: Debug + Copy + Default + ZeroCopySend + IceoryxSend + 'static> Payload for T {}
+
+fn service_name(service: &str) -> Result<ServiceName, PortError> {
+    ServiceName::new(service).map_err(|e| fail(service, "invalid service name")(&e))
+}
+
+fn open_event(
+    node: &Node<Ipc>,
+    service: &str,
+    qos: &crate::Qos,
+) -> Result<iceoryx2::service::port_factory::event::PortFactory<Ipc>, PortError> {
+    node.service_builder(&service_name(service)?)
+        .event()
+        .max_notifiers(qos.max_publishers)
+        .max_listeners(qos.max_subscribers)
+        .max_nodes(qos.max_nodes)
+        .open_or_create()
+        .map_err(|e| fail(service, "cannot open the event service")(&e))
+}
+
+/// Publishes one topic's messages and wakes its subscribers.
+pub struct Outbox<P: Payload> {
+    service: String,
+    factory: PortFactory<Ipc, P, ()>,
+    publisher: Publisher<Ipc, P, ()>,
+    notifier: Notifier<Ipc>,
+}
+
+fn open_topic<P: Payload>(
+    node: &Node<Ipc>,
+    service: &str,
+    q: &crate::Qos,
+) -> Result<PortFactory<Ipc, P, ()>, PortError> {
+    node.service_builder(&service_name(service)?)
+        .publish_subscribe::<P>()
+        .history_size(q.history)
+        .subscriber_max_buffer_size(q.buffer)
+        .enable_safe_overflow(true)
+        .max_publishers(q.max_publishers)
+        .max_subscribers(q.max_subscribers)
+        .max_nodes(q.max_nodes)
+        .open_or_create()
+        .map_err(|e| fail(service, "cannot open the topic")(&e))
+}
+
+impl<P: Payload> Outbox<P> {
+    pub fn open(node: &Node<Ipc>, endpoint: Endpoint, topic: &Topic<P>) -> Result<Self, PortError> {
+        let service = topic.service_name(endpoint);
+        let q = &topic.qos;
+        let factory = open_topic::<P>(node, &service, q)?;
+        let publisher = factory
+            .publisher_builder()
+            .create()
+            .map_err(|e| fail(&service, "cannot create a publisher")(&e))?;
+        let notifier = open_event(node, &service, q)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| fail(&service, "cannot create a notifier")(&e))?;
+        Ok(Outbox {
+            service,
+            factory,
+            publisher,
+            notifier,
+        })
+    }
+
+    /// Sends `msg` and wakes the subscribers; returns how many subscribers received it.
+    pub fn send(&self, msg: P) -> Result<usize, PortError> {
+        let n = self
+            .publisher
+            .send_copy(msg)
+            .map_err(|e| fail(&self.service, "cannot send")(&e))?;
+        self.notifier
+            .notify()
+            .map_err(|e| fail(&self.service, "cannot notify")(&e))?;
+        Ok(n)
+    }
+
+    /// Subscribers connected now (a producer may wait for its consumers before starting).
+    pub fn subscribers(&self) -> usize {
+        self.factory.dynamic_config().number_of_subscribers()
+    }
+
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+}
+
+/// Receives one topic's messages.
+pub struct Inbox<P: Payload> {
+    service: String,
+    factory: PortFactory<Ipc, P, ()>,
+    subscriber: Subscriber<Ipc, P, ()>,
+    listener: Listener<Ipc>,
+}
+
+impl<P: Payload> Inbox<P> {
+    pub fn open(node: &Node<Ipc>, endpoint: Endpoint, topic: &Topic<P>) -> Result<Self, PortError> {
+        let service = topic.service_name(endpoint);
+        let q = &topic.qos;
+        let factory = open_topic::<P>(node, &service, q)?;
+        let subscriber = factory
+            .subscriber_builder()
+            .create()
+            .map_err(|e| fail(&service, "cannot create a subscriber")(&e))?;
+        let listener = open_event(node, &service, q)?
+            .listener_builder()
+            .create()
+            .map_err(|e| fail(&service, "cannot create a listener")(&e))?;
+        Ok(Inbox {
+            service,
+            factory,
+            subscriber,
+            listener,
+        })
+    }
+
+    /// The next unread message, if any.
+    pub fn receive(&self) -> Result<Option<P>, PortError> {
+        match self.subscriber.receive() {
+            Ok(Some(sample)) => Ok(Some(*sample.payload())),
+            Ok(None) => Ok(None),
+            Err(e) => Err(fail(&self.service, "cannot receive")(&e)),
+        }
+    }
+
+    /// Every unread message, oldest first.
+    pub fn drain(&self) -> Result<Vec<P>, PortError> {
+        let mut out = Vec::new();
+        while let Some(m) = self.receive()? {
+            out.push(m);
+        }
+        Ok(out)
+    }
+
+    /// The listener to block on (see `runtime`'s wait loop).
+    pub fn listener(&self) -> &Listener<Ipc> {
+        &self.listener
+    }
+
+    /// Publishers connected now.
+    pub fn publishers(&self) -> usize {
+        self.factory.dynamic_config().number_of_publishers()
+    }
+
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+}
+
+fn open_frames(node: &Node<Ipc>, endpoint: Endpoint) -> Result<(String, FrameFactory), PortError> {
+    let topic = crate::topics::CAMERA_FRAME;
+    let service = topic.service_name(endpoint);
+    let q = &topic.qos;
+    let factory = node
+        .service_builder(&service_name(&service)?)
+        .publish_subscribe::<[u8]>()
+        .user_header::<CameraFrameHeader>()
+        .history_size(q.history)
+        .subscriber_max_buffer_size(q.buffer)
+        .enable_safe_overflow(true)
+        .max_publishers(q.max_publishers)
+        .max_subscribers(q.max_subscribers)
+        .max_nodes(q.max_nodes)
+        .open_or_create()
+        .map_err(|e| fail(&service, "cannot open the topic")(&e))?;
+    Ok((service, factory))
+}
+
+/// Publishes camera frames: the image is written straight into shared memory.
+pub struct FrameOutbox {
+    service: String,
+    publisher: Publisher<Ipc, [u8], CameraFrameHeader>,
+    notifier: Notifier<Ipc>,
+    max_len: usize,
+}
+
+impl FrameOutbox {
+    /// A publisher of frames of at most `max_len` bytes.
+    pub fn open(node: &Node<Ipc>, endpoint: Endpoint, max_len: usize) -> Result<Self, PortError> {
+        let (service, factory) = open_frames(node, endpoint)?;
+        let publisher = factory
+            .publisher_builder()
+            .initial_max_slice_len(max_len.max(1))
+            .create()
+            .map_err(|e| fail(&service, "cannot create a publisher")(&e))?;
+        let notifier = open_event(node, &service, &crate::topics::CAMERA_FRAME.qos)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| fail(&service, "cannot create a notifier")(&e))?;
+        Ok(FrameOutbox {
+            service,
+            publisher,
+            notifier,
+            max_len,
+        })
+    }
+
+    /// Loans `len` bytes of shared memory, lets `fill` write the image into them, and sends it with
+    /// `header`. `fill` sees zeroed bytes.
+    pub fn send_with<E>(
+        &self,
+        header: CameraFrameHeader,
+        len: usize,
+        fill: impl FnOnce(&mut [u8]) -> Result<(), E>,
+    ) -> Result<Result<(), E>, PortError> {
+        if len > self.max_len {
+            return Err(PortError {
+                service: self.service.clone(),
+                what: "frame too large",
+                reason: format!("{len} bytes, the publisher holds at most {}", self.max_len),
+            });
+        }
+        let mut sample = self
+            .publisher
+            .loan_slice_uninit(len)
+            .map_err(|e| fail(&self.service, "cannot loan a frame")(&e))?;
+        *sample.user_header_mut() = header;
+        let mut sample = sample.write_from_fn(|_| 0u8);
+        if let Err(e) = fill(sample.payload_mut()) {
+            return Ok(Err(e));
+        }
+        sample
+            .send()
+            .map_err(|e| fail(&self.service, "cannot send")(&e))?;
+        self.notifier
+            .notify()
+            .map_err(|e| fail(&self.service, "cannot notify")(&e))?;
+        Ok(Ok(()))
+    }
+}
+
+/// Receives camera frames without copying them.
+pub struct FrameInbox {
+    service: String,
+    subscriber: Subscriber<Ipc, [u8], CameraFrameHeader>,
+    listener: Listener<Ipc>,
+}
+
+impl FrameInbox {
+    pub fn open(node: &Node<Ipc>, endpoint: Endpoint) -> Result<Self, PortError> {
+        let (service, factory) = open_frames(node, endpoint)?;
+        let subscriber = factory
+            .subscriber_builder()
+            .create()
+            .map_err(|e| fail(&service, "cannot create a subscriber")(&e))?;
+        let listener = open_event(node, &service, &crate::topics::CAMERA_FRAME.qos)?
+            .listener_builder()
+            .create()
+            .map_err(|e| fail(&service, "cannot create a listener")(&e))?;
+        Ok(FrameInbox {
+            service,
+            subscriber,
+            listener,
+        })
+    }
+
+    /// Calls `f` with the next unread frame (header and image, in shared memory), if any.
+    pub fn receive_with<R>(
+        &self,
+        f: impl FnOnce(&CameraFrameHeader, &[u8]) -> R,
+    ) -> Result<Option<R>, PortError> {
+        match self.subscriber.receive() {
+            Ok(Some(sample)) => Ok(Some(f(sample.user_header(), sample.payload()))),
+            Ok(None) => Ok(None),
+            Err(e) => Err(fail(&self.service, "cannot receive")(&e)),
+        }
+    }
+
+    pub fn listener(&self) -> &Listener<Ipc> {
+        &self.listener
+    }
+
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+}

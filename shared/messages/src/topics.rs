@@ -1,0 +1,181 @@
+//! Topic names and their QoS, defined once for every process.
+
+use crate::payload::*;
+use std::marker::PhantomData;
+
+/// Which side of the two-step learning a process serves; it selects the topics' namespace.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Endpoint {
+    /// The all-in-simulation mesh: driven by the simulator, data-driven lockstep.
+    Sim,
+    /// The vehicle (or its twin): driven by the camera's clock.
+    Vehicle,
+}
+
+impl Endpoint {
+    pub fn name(self) -> &'static str {
+        match self {
+            Endpoint::Sim => "sim",
+            Endpoint::Vehicle => "vehicle",
+        }
+    }
+}
+
+impl std::fmt::Display for Endpoint {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Endpoint {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "sim" => Ok(Endpoint::Sim),
+            "vehicle" => Ok(Endpoint::Vehicle),
+            other => Err(format!(
+                "unknown endpoint `{other}` (expected `sim` or `vehicle`)"
+            )),
+        }
+    }
+}
+
+/// A topic's quality of service.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Qos {
+    /// Samples a subscriber that connects late still receives (1: the latest, so a restarted
+    /// process picks up the current step at once).
+    pub history: usize,
+    /// Samples a subscriber can hold unread; the oldest is overwritten when full (publishers never
+    /// block: a slow process must not stall the vehicle).
+    pub buffer: usize,
+    pub max_publishers: usize,
+    pub max_subscribers: usize,
+    pub max_nodes: usize,
+}
+
+/// The lockstep topics: one step in flight, a little slack for re-sends.
+const STEP: Qos = Qos {
+    history: 1,
+    buffer: 4,
+    // The producing service, plus its restarted successor while the dead one is being cleaned up.
+    max_publishers: 2,
+    // The consumers, a recorder or monitor, and a test's probe.
+    max_subscribers: 8,
+    max_nodes: 16,
+};
+
+/// A named topic carrying payloads of type `P`.
+#[derive(Debug)]
+pub struct Topic<P: ?Sized> {
+    /// The name below `cabletrack/<endpoint>/`.
+    pub name: &'static str,
+    pub qos: Qos,
+    _payload: PhantomData<fn() -> Box<P>>,
+}
+
+impl<P: ?Sized> Clone for Topic<P> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+
+impl<P: ?Sized> Copy for Topic<P> {}
+
+impl<P: ?Sized> Topic<P> {
+    pub const fn new(name: &'static str, qos: Qos) -> Self {
+        Topic {
+            name,
+            qos,
+            _payload: PhantomData,
+        }
+    }
+
+    /// The iceoryx2 service name on an endpoint.
+    pub fn service_name(&self, endpoint: Endpoint) -> String {
+        format!("cabletrack/{}/{}", endpoint.name(), self.name)
+    }
+}
+
+/// The vehicle's state, from the simulator (or the vehicle twin).
+pub const VEHICLE_STATE: Topic<VehicleStateMsg> = Topic::new("vehicle_state", STEP);
+
+/// Camera frames: an 8-bit image as a `[u8]` slice with a [`CameraFrameHeader`].
+pub const CAMERA_FRAME: Topic<[u8]> = Topic::new(
+    "camera_frame",
+    Qos {
+        // Each subscriber's buffer and history cost a frame of shared memory: keep them small.
+        max_subscribers: 4,
+        buffer: 2,
+        ..STEP
+    },
+);
+
+/// What perception found in each frame.
+pub const CABLE_OBSERVATION: Topic<CableObservationMsg> = Topic::new("cable_observation", STEP);
+
+/// The behaviours' commands, one topic per DOF.
+pub const SURGE_COMMAND: Topic<DofCommand> = Topic::new("command/surge", STEP);
+pub const SWAY_COMMAND: Topic<DofCommand> = Topic::new("command/sway", STEP);
+pub const YAW_COMMAND: Topic<DofCommand> = Topic::new("command/yaw", STEP);
+
+/// The command topic of a learned DOF.
+pub fn command(dof: config::Dof) -> Topic<DofCommand> {
+    match dof {
+        config::Dof::Sway => SWAY_COMMAND,
+        config::Dof::Yaw => YAW_COMMAND,
+    }
+}
+
+/// Thruster setpoints: exactly one publisher (the allocator) may drive the thrusters.
+pub const THRUSTER_SETPOINTS: Topic<ThrusterSetpoints> = Topic::new(
+    "thruster_setpoints",
+    Qos {
+        max_publishers: 1,
+        ..STEP
+    },
+);
+
+/// Learning statistics, one topic per learned DOF, one sample per episode. A large buffer: a monitor
+/// must not miss an episode.
+const STATS: Qos = Qos {
+    history: 1,
+    buffer: 256,
+    max_publishers: 2,
+    max_subscribers: 4,
+    max_nodes: 16,
+};
+pub const SWAY_LEARNING: Topic<LearningStats> = Topic::new("learning/sway", STATS);
+pub const YAW_LEARNING: Topic<LearningStats> = Topic::new("learning/yaw", STATS);
+
+/// The learning-statistics topic of a learned DOF.
+pub fn learning(dof: config::Dof) -> Topic<LearningStats> {
+    match dof {
+        config::Dof::Sway => SWAY_LEARNING,
+        config::Dof::Yaw => YAW_LEARNING,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_carry_the_endpoint() {
+        assert_eq!(
+            VEHICLE_STATE.service_name(Endpoint::Sim),
+            "cabletrack/sim/vehicle_state"
+        );
+        assert_eq!(
+            command(config::Dof::Yaw).service_name(Endpoint::Vehicle),
+            "cabletrack/vehicle/command/yaw"
+        );
+        assert_eq!("vehicle".parse::<Endpoint>(), Ok(Endpoint::Vehicle));
+        assert!("boat".parse::<Endpoint>().is_err());
+    }
+
+    #[test]
+    fn only_one_process_drives_the_thrusters() {
+        assert_eq!(THRUSTER_SETPOINTS.qos.max_publishers, 1);
+    }
+}

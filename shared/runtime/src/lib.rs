@@ -1,0 +1,27 @@
+//! What every cabletrack process shares, written once: the common command line, tracing, the
+//! configuration, the iceoryx2 node (isolated by a prefix and root, with dead nodes' leftovers
+//! removed at start), clean shutdown on SIGINT/SIGTERM, the blocking wait loop, and the lockstep
+//! helpers.
+//!
+//! A service's `main` reads:
+//!
+//! ```ignore
+//! fn main() -> std::process::ExitCode {
+//!     let args = Args::parse();
+//!     runtime::run("perception", &args.common, |rt| {
+//!         let frames = rt.frame_inbox()?;                       // open ports
+//!         let out = rt.outbox(&topics::CABLE_OBSERVATION)?;
+//!         rt.serve(&[frames.listener()], Timer::None, |_| {    // loop { wait, take input,
+//!             /* call the core, publish */                      //        call core, publish }
+//!             Ok(Flow::Continue)
+//!         })
+//!     })
+//! }
+//! ```
+
+pub mod lockstep;
+mod node;
+mod wait;
+
+pub use node::{CommonArgs, IoxSettings, Runtime, RuntimeError, init_tracing, run};
+pub use wait::{Flow, Stopped, Timer, Wake};

@@ -1,0 +1,266 @@
+use crate::wait::{Stopped, Timer, Wake};
+use config::{LearningParams, Scenario};
+use iceoryx2::config::Config as IoxConfig;
+use iceoryx2::node::NodeView;
+use iceoryx2::prelude::*;
+use messages::{
+    Endpoint, FrameInbox, FrameOutbox, Inbox, Outbox, PortError, Topic, ports::Payload,
+};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Duration;
+
+/// The arguments every service takes (flatten them into its own `clap` parser).
+#[derive(clap::Args, Clone, Debug)]
+pub struct CommonArgs {
+    /// Which mesh to join: `sim` (the simulator drives) or `vehicle` (the camera's clock drives).
+    #[arg(long, default_value = "sim")]
+    pub endpoint: Endpoint,
+    /// Directory holding scenario.toml and learning.toml.
+    #[arg(long, default_value = "config", env = "CABLETRACK_CONFIG")]
+    pub config: PathBuf,
+    /// The experiment's seed; each process draws from its own stream of it.
+    #[arg(long, default_value_t = 1, env = "CABLETRACK_SEED")]
+    pub seed: u64,
+    #[command(flatten)]
+    pub iox: IoxSettings,
+}
+
+/// Where the iceoryx2 resources live. Processes with another prefix and root never meet: tests run
+/// isolated and in parallel.
+#[derive(clap::Args, Clone, Debug)]
+pub struct IoxSettings {
+    /// Prefix of every shared-memory file and socket.
+    #[arg(
+        long = "iox-prefix",
+        default_value = "ct_",
+        env = "CABLETRACK_IOX_PREFIX"
+    )]
+    pub prefix: String,
+    /// Directory of iceoryx2's sockets and node records.
+    #[arg(
+        long = "iox-root",
+        default_value = "/tmp/cabletrack/",
+        env = "CABLETRACK_IOX_ROOT"
+    )]
+    pub root: String,
+}
+
+/// An event socket is `<root><prefix><up to 39 digits>.event` and must fit in 108 bytes.
+const MAX_ROOT_AND_PREFIX: usize = 63;
+
+impl IoxSettings {
+    /// The iceoryx2 configuration for these settings.
+    pub fn config(&self) -> Result<IoxConfig, RuntimeError> {
+        let root = if self.root.ends_with('/') {
+            self.root.clone()
+        } else {
+            format!("{}/", self.root)
+        };
+        if root.len() + self.prefix.len() > MAX_ROOT_AND_PREFIX {
+            return Err(RuntimeError::Iox(format!(
+                "--iox-root `{root}` and --iox-prefix `{}` are {} bytes together; at most {MAX_ROOT_AND_PREFIX} fit in a socket path",
+                self.prefix,
+                root.len() + self.prefix.len()
+            )));
+        }
+        let mut cfg = IoxConfig::default();
+        cfg.global.prefix = FileName::new(self.prefix.as_bytes())
+            .map_err(|e| RuntimeError::Iox(format!("--iox-prefix `{}`: {e:?}", self.prefix)))?;
+        cfg.global.set_root_path(
+            &iceoryx2::prelude::Path::new(root.as_bytes())
+                .map_err(|e| RuntimeError::Iox(format!("--iox-root `{root}`: {e:?}")))?,
+        );
+        Ok(cfg)
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RuntimeError {
+    #[error(transparent)]
+    Config(#[from] config::ConfigError),
+    #[error("iceoryx2: {0}")]
+    Iox(String),
+    #[error(transparent)]
+    Port(#[from] PortError),
+}
+
+/// A running service: its node, its configuration, its identity.
+pub struct Runtime {
+    name: &'static str,
+    endpoint: Endpoint,
+    seed: u64,
+    config_dir: PathBuf,
+    scenario: Scenario,
+    learning: LearningParams,
+    iox: IoxConfig,
+    node: Node<ipc::Service>,
+}
+
+/// Sets up logging once per process: `RUST_LOG` (default `info`) filters, colours on a terminal only;
+/// iceoryx2's own level from `IOX2_LOG_LEVEL` (default `warn`).
+pub fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    // A second call (tests) keeps the first subscriber.
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
+        .try_init();
+    set_log_level_from_env_or(LogLevel::Warn);
+}
+
+/// Runs a service: sets up tracing, starts the runtime, calls `body`, and turns an error into a
+/// logged chain and a non-zero exit.
+pub fn run(
+    name: &'static str,
+    args: &CommonArgs,
+    body: impl FnOnce(&Runtime) -> anyhow::Result<()>,
+) -> ExitCode {
+    init_tracing();
+    let span = tracing::info_span!("service", name);
+    let _entered = span.enter();
+    let result = Runtime::start(name, args)
+        .map_err(anyhow::Error::from)
+        .and_then(|rt| {
+            tracing::info!(endpoint = %rt.endpoint, seed = rt.seed, config = %rt.config_dir.display(), "started");
+            let r = body(&rt);
+            if r.is_ok() {
+                tracing::info!("stopped");
+            }
+            r
+        });
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            tracing::error!("{err:#}");
+            eprintln!("{name}: error: {err:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+impl Runtime {
+    /// Loads the configuration, removes the resources of dead processes, creates the node and
+    /// installs the termination-signal handler.
+    pub fn start(name: &'static str, args: &CommonArgs) -> Result<Runtime, RuntimeError> {
+        let scenario: Scenario = config::load(&args.config.join("scenario.toml"))?;
+        let learning: LearningParams = config::load(&args.config.join("learning.toml"))?;
+        let iox = args.iox.config()?;
+        remove_dead_nodes(&iox);
+        let node = NodeBuilder::new()
+            .name(
+                &NodeName::new(name)
+                    .map_err(|e| RuntimeError::Iox(format!("node name `{name}`: {e:?}")))?,
+            )
+            .config(&iox)
+            .create::<ipc::Service>()
+            .map_err(|e| RuntimeError::Iox(format!("cannot create node `{name}`: {e:?}")))?;
+        // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait; install it now, so a signal
+        // during start-up is seen and not fatal.
+        let _ = node.wait(Duration::ZERO);
+        Ok(Runtime {
+            name,
+            endpoint: args.endpoint,
+            seed: args.seed,
+            config_dir: args.config.clone(),
+            scenario,
+            learning,
+            iox,
+            node,
+        })
+    }
+
+    pub fn name(&self) -> &'static str {
+        self.name
+    }
+
+    pub fn endpoint(&self) -> Endpoint {
+        self.endpoint
+    }
+
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+
+    /// This process's random stream (see `config::derive_seed`).
+    pub fn stream_seed(&self, stream: &str) -> u64 {
+        config::derive_seed(self.seed, stream)
+    }
+
+    pub fn config_dir(&self) -> &Path {
+        &self.config_dir
+    }
+
+    pub fn scenario(&self) -> &Scenario {
+        &self.scenario
+    }
+
+    pub fn learning(&self) -> &LearningParams {
+        &self.learning
+    }
+
+    pub fn node(&self) -> &Node<ipc::Service> {
+        &self.node
+    }
+
+    pub fn iox_config(&self) -> &IoxConfig {
+        &self.iox
+    }
+
+    pub fn outbox<P: Payload>(&self, topic: &Topic<P>) -> Result<Outbox<P>, PortError> {
+        Outbox::open(&self.node, self.endpoint, topic)
+    }
+
+    pub fn inbox<P: Payload>(&self, topic: &Topic<P>) -> Result<Inbox<P>, PortError> {
+        Inbox::open(&self.node, self.endpoint, topic)
+    }
+
+    /// A frame publisher for the scenario's camera size.
+    pub fn frame_outbox(&self) -> Result<FrameOutbox, PortError> {
+        let c = &self.scenario.camera;
+        FrameOutbox::open(&self.node, self.endpoint, (c.width * c.height) as usize)
+    }
+
+    pub fn frame_inbox(&self) -> Result<FrameInbox, PortError> {
+        FrameInbox::open(&self.node, self.endpoint)
+    }
+
+    /// Blocks until one of `inputs` is notified or the timer fires, calls `on_wake`, and repeats
+    /// until `on_wake` says stop or a termination signal arrives. Never spins: between wake-ups the
+    /// process sleeps in the kernel.
+    pub fn serve(
+        &self,
+        inputs: &[&iceoryx2::port::listener::Listener<ipc::Service>],
+        timer: Timer,
+        on_wake: impl FnMut(Wake) -> anyhow::Result<crate::Flow>,
+    ) -> anyhow::Result<Stopped> {
+        crate::wait::serve(inputs, timer, on_wake)
+    }
+}
+
+/// Removes what processes that died without cleaning up (e.g. `kill -9`) left in shared memory.
+fn remove_dead_nodes(iox: &IoxConfig) {
+    let result = Node::<ipc::Service>::list(iox, |state| {
+        if let NodeState::Dead(view) = state {
+            let who = view
+                .details()
+                .as_ref()
+                .map(|d| d.name().to_string())
+                .unwrap_or_else(|| "?".into());
+            match view.try_remove_stale_resources() {
+                Ok(_) => tracing::info!(node = %who, "removed the resources of a dead process"),
+                Err(e) => {
+                    tracing::warn!(node = %who, "cannot remove a dead process's resources: {e:?}")
+                }
+            }
+        }
+        CallbackProgression::Continue
+    });
+    if let Err(e) = result {
+        // A fresh root has no node directory yet.
+        tracing::debug!("listing nodes: {e:?}");
+    }
+}
