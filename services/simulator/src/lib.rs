@@ -5,6 +5,12 @@
 //! Theta uniform in the reset box, all velocities 0) and ends when the cable leaves the image
 //! ([`Status::Lost`]) or after `max_steps` steps ([`Status::TimeLimit`]). The loop is data-driven:
 //! [`Simulator::step`] advances one control period with the setpoints of the current step.
+//!
+//! [`lockstep`] is the simulator's side of the mesh's protocol (publish a step, wait for its
+//! setpoints, re-send, deadline), also without IPC; the `simulator` binary binds it to iceoryx2. The
+//! trainer composes [`Simulator`] directly, in one process.
+
+pub mod lockstep;
 
 use config::{ResetParams, Scenario, Timing};
 use model::{Cable, Camera, Dynamics, Pose, ThrusterLayout, VehicleState};

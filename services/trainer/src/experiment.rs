@@ -4,7 +4,7 @@
 
 use crate::Setup;
 use crate::progress::Progress;
-use crate::world::{EpisodeResult, World, state_max};
+use crate::world::{EpisodeResult, World};
 use config::{Dof, PerDof, derive_seed};
 use learning::Algorithm;
 use learning::agent::Agent;
@@ -247,12 +247,11 @@ pub fn fixed_agents(setup: &Setup, gains: PerDof<[f64; 2]>, seed: u64) -> PerDof
     learning.policy.initial_gain = gains;
     let (_, seeds) = crate::world::stream_seeds(seed);
     let agent = |dof: Dof| {
-        let mut a = Agent::new(
+        let mut a = behaviour::new_agent(
             dof,
             Algorithm::Nac,
+            &setup.scenario,
             &learning,
-            *setup.scenario.reward.of(dof),
-            state_max(&setup.scenario, dof),
             *seeds.get(dof),
         );
         a.set_learning(false);

@@ -86,7 +86,7 @@ pub struct PolicyMap {
 
 impl PolicyMap {
     pub fn new(dof: Dof, gain: [f64; 2], scenario: &Scenario, cells: usize) -> Self {
-        let max = crate::world::state_max(scenario, dof);
+        let max = scenario.state_max(dof);
         let at = |i: usize, m: f64| -m + 2.0 * m * (i as f64 + 0.5) / cells as f64;
         let actions = (0..cells)
             .map(|row| {

@@ -3,10 +3,11 @@
 //! called in the mesh's order with no IPC. Step one runs here thousands of episodes per second.
 
 use crate::Eyes;
+use behaviour::{behave, new_agent};
 use config::{Dof, LearningParams, PerDof, Scenario, derive_seed};
 use learning::Algorithm;
 use learning::agent::{Agent, EpisodeSummary, StepKind};
-use model::{CableObservation, Forces};
+use model::Forces;
 use simulator::{SimStep, Simulator, Status};
 use surge_controller::SurgeController;
 use thruster_allocator::Allocator;
@@ -70,17 +71,7 @@ impl World {
         seed: u64,
     ) -> Self {
         let (_, agent_seeds) = stream_seeds(seed);
-        let agent = |dof: Dof| {
-            let state_max = state_max(scenario, dof);
-            Agent::new(
-                dof,
-                algorithm,
-                learning,
-                *scenario.reward.of(dof),
-                state_max,
-                *agent_seeds.get(dof),
-            )
-        };
+        let agent = |dof: Dof| new_agent(dof, algorithm, scenario, learning, *agent_seeds.get(dof));
         let agents = PerDof {
             sway: agent(Dof::Sway),
             yaw: agent(Dof::Yaw),
@@ -135,8 +126,8 @@ impl World {
                 Status::Lost => StepKind::Lost,
                 Status::TimeLimit => StepKind::TimeLimit,
             };
-            let sway = behave(&mut self.agents.sway, Dof::Sway, &obs, kind);
-            let yaw = behave(&mut self.agents.yaw, Dof::Yaw, &obs, kind);
+            let sway = behave(&mut self.agents.sway, &obs, kind);
+            let yaw = behave(&mut self.agents.yaw, &obs, kind);
             if let (Some(s), Some(y)) = (sway.1, yaw.1) {
                 return self.result(&step, s, y);
             }
@@ -179,32 +170,5 @@ impl World {
                 yaw: yaw.actor_updates,
             },
         }
-    }
-}
-
-/// One behaviour's step: its action, and its episode summary when the episode ended.
-fn behave(
-    agent: &mut Agent,
-    dof: Dof,
-    obs: &CableObservation,
-    kind: StepKind,
-) -> (f64, Option<EpisodeSummary>) {
-    if !obs.found && kind == StepKind::Running {
-        // Perception missed the cable in this frame although it is in view: hold still and learn
-        // nothing from a state that was not observed.
-        return (agent.skip(), None);
-    }
-    let step = agent.step(obs.state(dof), kind);
-    (step.action, step.episode)
-}
-
-/// The observation box of a DOF: |x_g| <= 0.5 and |Theta| <= pi/2, rates as configured.
-pub fn state_max(scenario: &Scenario, dof: Dof) -> [f64; 2] {
-    match dof {
-        Dof::Sway => [0.5, scenario.observation.x_g_rate_max],
-        Dof::Yaw => [
-            std::f64::consts::FRAC_PI_2,
-            scenario.observation.theta_rate_max,
-        ],
     }
 }

@@ -21,6 +21,19 @@ pub struct Scenario {
     pub perception: PerceptionParams,
 }
 
+impl Scenario {
+    /// The observation box of a learned DOF, `|x_i| <= state_max[i]`: |x_g| <= 0.5 and
+    /// |Theta| <= pi/2 (the image's limits), the rates as clipped by [`ObservationLimits`]. Every agent
+    /// of a DOF (the trainer's and the behaviour service's) takes its box, and so its failure reward,
+    /// from here.
+    pub fn state_max(&self, dof: crate::Dof) -> [f64; 2] {
+        match dof {
+            crate::Dof::Sway => [0.5, self.observation.x_g_rate_max],
+            crate::Dof::Yaw => [std::f64::consts::FRAC_PI_2, self.observation.theta_rate_max],
+        }
+    }
+}
+
 impl Validate for Scenario {
     fn validate(&self, key: &str) -> Result<(), Invalid> {
         self.timing.validate(&join(key, "timing"))?;

@@ -207,12 +207,18 @@ fn open_frames(node: &Node<Ipc>, endpoint: Endpoint) -> Result<(String, FrameFac
 /// Publishes camera frames: the image is written straight into shared memory.
 pub struct FrameOutbox {
     service: String,
+    factory: FrameFactory,
     publisher: Publisher<Ipc, [u8], CameraFrameHeader>,
     notifier: Notifier<Ipc>,
     max_len: usize,
 }
 
 impl FrameOutbox {
+    /// Subscribers connected now.
+    pub fn subscribers(&self) -> usize {
+        self.factory.dynamic_config().number_of_subscribers()
+    }
+
     /// A publisher of frames of at most `max_len` bytes.
     pub fn open(node: &Node<Ipc>, endpoint: Endpoint, max_len: usize) -> Result<Self, PortError> {
         let (service, factory) = open_frames(node, endpoint)?;
@@ -227,6 +233,7 @@ impl FrameOutbox {
             .map_err(|e| fail(&service, "cannot create a notifier")(&e))?;
         Ok(FrameOutbox {
             service,
+            factory,
             publisher,
             notifier,
             max_len,
@@ -270,6 +277,7 @@ impl FrameOutbox {
 /// Receives camera frames without copying them.
 pub struct FrameInbox {
     service: String,
+    factory: FrameFactory,
     subscriber: Subscriber<Ipc, [u8], CameraFrameHeader>,
     listener: Listener<Ipc>,
 }
@@ -287,6 +295,7 @@ impl FrameInbox {
             .map_err(|e| fail(&service, "cannot create a listener")(&e))?;
         Ok(FrameInbox {
             service,
+            factory,
             subscriber,
             listener,
         })
@@ -306,6 +315,11 @@ impl FrameInbox {
 
     pub fn listener(&self) -> &Listener<Ipc> {
         &self.listener
+    }
+
+    /// Publishers connected now.
+    pub fn publishers(&self) -> usize {
+        self.factory.dynamic_config().number_of_publishers()
     }
 
     pub fn service(&self) -> &str {

@@ -23,5 +23,7 @@ pub mod lockstep;
 mod node;
 mod wait;
 
-pub use node::{CommonArgs, IoxSettings, Runtime, RuntimeError, init_tracing, run};
+pub use node::{
+    CommonArgs, IoxSettings, Runtime, RuntimeError, init_tracing, remove_dead_nodes, run,
+};
 pub use wait::{Flow, Stopped, Timer, Wake};

@@ -104,10 +104,13 @@ impl<T: Copy, const N: usize> Gather<T, N> {
         match self.seq {
             Some(s) if seq < s => return Ok(None),
             Some(s) if seq > s => {
-                dropped = Some(Partial {
-                    seq: s,
-                    values: self.slots,
-                });
+                // Only an older step that had started is dropped; a completed one left no values.
+                if self.slots.iter().any(Option::is_some) {
+                    dropped = Some(Partial {
+                        seq: s,
+                        values: self.slots,
+                    });
+                }
                 self.reset(seq);
             }
             None => self.reset(seq),
@@ -214,5 +217,23 @@ mod tests {
         assert!(g.take_overdue(Duration::ZERO).is_none());
         g.put(0, 2, 1.0).unwrap();
         assert!(g.take_overdue(Duration::from_secs(3600)).is_none());
+    }
+
+    #[test]
+    fn a_completed_step_is_not_reported_as_dropped() {
+        let mut g = Gather::<f64, 2>::new();
+        g.put(0, 1, 1.0).unwrap();
+        assert_eq!(g.put(1, 1, 2.0), Ok(Some((1, [1.0, 2.0]))));
+        assert_eq!(
+            g.put(0, 2, 1.0),
+            Ok(None),
+            "no spurious partial for the completed step 1"
+        );
+        let _ = g.take_overdue(Duration::ZERO).unwrap();
+        assert_eq!(
+            g.put(0, 3, 1.0),
+            Ok(None),
+            "nor for an overdue step already taken"
+        );
     }
 }

@@ -241,8 +241,10 @@ impl Runtime {
     }
 }
 
-/// Removes what processes that died without cleaning up (e.g. `kill -9`) left in shared memory.
-fn remove_dead_nodes(iox: &IoxConfig) {
+/// Removes what processes that died without cleaning up (e.g. `kill -9`) left in shared memory;
+/// returns how many dead processes were cleaned up.
+pub fn remove_dead_nodes(iox: &IoxConfig) -> usize {
+    let mut removed = 0;
     let result = Node::<ipc::Service>::list(iox, |state| {
         if let NodeState::Dead(view) = state {
             let who = view
@@ -251,7 +253,10 @@ fn remove_dead_nodes(iox: &IoxConfig) {
                 .map(|d| d.name().to_string())
                 .unwrap_or_else(|| "?".into());
             match view.try_remove_stale_resources() {
-                Ok(_) => tracing::info!(node = %who, "removed the resources of a dead process"),
+                Ok(_) => {
+                    removed += 1;
+                    tracing::info!(node = %who, "removed the resources of a dead process");
+                }
                 Err(e) => {
                     tracing::warn!(node = %who, "cannot remove a dead process's resources: {e:?}")
                 }
@@ -263,4 +268,5 @@ fn remove_dead_nodes(iox: &IoxConfig) {
         // A fresh root has no node directory yet.
         tracing::debug!("listing nodes: {e:?}");
     }
+    removed
 }

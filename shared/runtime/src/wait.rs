@@ -73,6 +73,11 @@ pub(crate) fn serve(
         ),
         None => None,
     };
+    // A message sent before this process's listener existed announced itself to nobody (a topic's
+    // history, a producer faster than our start-up): look at the inputs once before the first wait.
+    if !inputs.is_empty() && on_wake(Wake::Input)? == Flow::Stop {
+        return Ok(Stopped::Done);
+    }
     loop {
         let mut input = false;
         let mut handle = |id: WaitSetAttachmentId<ipc::Service>| {

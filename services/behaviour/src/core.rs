@@ -1,0 +1,322 @@
+//! The behaviour's core: one learned DOF between perception and the allocator, without IPC.
+//!
+//! Per observation, [`Behaviour::step`] applies the trainer's rule ([`behave`]): while the episode
+//! runs, an observation without the cable (perception missed it in this frame) is a skipped step
+//! (action 0, nothing learned); otherwise the agent steps on the DOF's state with the step's status.
+//! The answer is the DOF's command for that step and, when the step ended an episode, the episode's
+//! learning statistics.
+
+use config::{Dof, LearningParams, Scenario};
+use learning::{Agent, AgentState, Algorithm, EpisodeSummary, StepKind};
+use messages::{CableObservationMsg, DofCommand, LearningStats, Stamp, StepStatus};
+use model::CableObservation;
+
+/// A fresh agent for `dof`, built exactly as the in-process trainer builds it: the configured
+/// initial gain, the scenario's reward and observation box, exploration seeded by `seed` (the
+/// experiment's stream of the DOF, `config::derive_seed(seed, dof.name())`).
+pub fn new_agent(
+    dof: Dof,
+    algorithm: Algorithm,
+    scenario: &Scenario,
+    learning: &LearningParams,
+    seed: u64,
+) -> Agent {
+    Agent::new(
+        dof,
+        algorithm,
+        learning,
+        *scenario.reward.of(dof),
+        scenario.state_max(dof),
+        seed,
+    )
+}
+
+/// The exploration seed of an agent resumed from `state`: the DOF's stream seed for a state that has
+/// taken no step, else a seed derived from it and the state's step count, so a behaviour restarted
+/// from a later checkpoint does not replay the noise it already used.
+pub fn resume_seed(stream_seed: u64, state: &AgentState) -> u64 {
+    if state.steps == 0 {
+        stream_seed
+    } else {
+        config::derive_seed(stream_seed, &format!("resume/{}", state.steps))
+    }
+}
+
+/// One behaviour's step, the rule the in-process trainer (`trainer::world`) applies as well: its
+/// action, and its episode summary when the episode ended.
+pub fn behave(
+    agent: &mut Agent,
+    obs: &CableObservation,
+    kind: StepKind,
+) -> (f64, Option<EpisodeSummary>) {
+    if !obs.found && kind == StepKind::Running {
+        // Perception missed the cable in this frame although it is in view: hold still and learn
+        // nothing from a state that was not observed.
+        return (agent.skip(), None);
+    }
+    let step = agent.step(obs.state(agent.dof()), kind);
+    (step.action, step.episode)
+}
+
+/// What the agent is told of a step with this status.
+pub fn step_kind(status: StepStatus) -> StepKind {
+    match status {
+        StepStatus::Running => StepKind::Running,
+        StepStatus::Lost => StepKind::Lost,
+        StepStatus::TimeLimit => StepKind::TimeLimit,
+    }
+}
+
+/// The statistics message of a finished episode.
+pub fn learning_stats(stamp: Stamp, episode: &EpisodeSummary, learning: bool) -> LearningStats {
+    LearningStats {
+        stamp,
+        episode_return: episode.return_,
+        gain: episode.gain,
+        actor_updates: episode.actor_updates,
+        steps: episode.steps,
+        failed: episode.failed as u8,
+        learning: learning as u8,
+        _reserved: [0; 2],
+    }
+}
+
+/// The answer to one observation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Output {
+    /// The DOF's command: the observation's stamp, the action applied.
+    pub command: DofCommand,
+    /// Present when the step ended an episode.
+    pub stats: Option<LearningStats>,
+}
+
+/// One learned DOF: its agent and the episode it is in.
+#[derive(Clone, Debug)]
+pub struct Behaviour {
+    agent: Agent,
+    /// The episode of the last observation, and whether that observation ended it.
+    last: Option<(u32, bool)>,
+}
+
+impl Behaviour {
+    pub fn new(agent: Agent) -> Self {
+        Behaviour { agent, last: None }
+    }
+
+    pub fn dof(&self) -> Dof {
+        self.agent.dof()
+    }
+
+    pub fn agent(&self) -> &Agent {
+        &self.agent
+    }
+
+    pub fn into_agent(self) -> Agent {
+        self.agent
+    }
+
+    /// Everything needed to resume this behaviour.
+    pub fn checkpoint(&self) -> AgentState {
+        self.agent.checkpoint()
+    }
+
+    /// Answers one observation (call it once per step: the shell's `Once` sees to that).
+    ///
+    /// An observation of a new episode while the last one had not ended (the simulator was
+    /// restarted, a terminal step was lost) aborts the old episode first: no transition may span a
+    /// reset. That episode gets no statistics; the abort is logged.
+    pub fn step(&mut self, msg: &CableObservationMsg) -> Output {
+        let status = msg.stamp.status();
+        if let Some((episode, false)) = self.last
+            && episode != msg.stamp.episode
+            && let Some(cut) = self.agent.abort_episode()
+        {
+            tracing::warn!(
+                dof = %self.dof(),
+                episode,
+                next = msg.stamp.episode,
+                seq = msg.stamp.seq,
+                return_ = cut.return_,
+                steps = cut.steps,
+                "a new episode began before the last one ended: the last one is aborted, its pending step not learned"
+            );
+        }
+        self.last = Some((msg.stamp.episode, status.is_terminal()));
+        let (action, episode) = behave(&mut self.agent, &msg.observation(), step_kind(status));
+        Output {
+            command: DofCommand {
+                stamp: msg.stamp,
+                value: action,
+            },
+            stats: episode.map(|e| learning_stats(msg.stamp, &e, self.agent.is_learning())),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use messages::CableTruth;
+
+    fn params() -> (Scenario, LearningParams) {
+        let mut learning = LearningParams::default();
+        learning.policy.initial_gain.sway = [-1.2, -0.3];
+        learning.policy.initial_gain.yaw = [-0.8, -0.2];
+        (Scenario::default(), learning)
+    }
+
+    fn obs(
+        seq: u64,
+        episode: u32,
+        step: u32,
+        status: StepStatus,
+        found: bool,
+    ) -> CableObservationMsg {
+        let t = seq as f64;
+        CableObservationMsg {
+            stamp: Stamp::new(seq, seq * 200_000_000, episode, step, status),
+            observation: CableTruth {
+                found: found as u8,
+                x_g: 0.3 * (0.4 * t).sin(),
+                x_g_rate: 0.2 * (0.4 * t).cos(),
+                theta: 0.6 * (0.3 * t).cos(),
+                theta_rate: -0.3 * (0.3 * t).sin(),
+                ..Default::default()
+            },
+        }
+    }
+
+    /// A run through a skipped frame, a time limit, a reset and a lost cable.
+    fn run() -> Vec<CableObservationMsg> {
+        let mut v = Vec::new();
+        let mut seq = 0;
+        for (episode, len, end) in [(0, 12, StepStatus::TimeLimit), (1, 7, StepStatus::Lost)] {
+            for step in 0..=len {
+                let status = if step == len {
+                    end
+                } else {
+                    StepStatus::Running
+                };
+                v.push(obs(seq, episode, step, status, step != 4));
+                seq += 1;
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn the_behaviour_is_the_trainers_rule_for_either_dof() {
+        let (scenario, learning) = params();
+        for dof in Dof::ALL {
+            let seed = config::derive_seed(9, dof.name());
+            let mut b = Behaviour::new(new_agent(dof, Algorithm::Nac, &scenario, &learning, seed));
+            // The reference, built from the learning crate alone: the trainer's construction.
+            let mut a = Agent::new(
+                dof,
+                Algorithm::Nac,
+                &learning,
+                *scenario.reward.of(dof),
+                scenario.state_max(dof),
+                seed,
+            );
+            let mut episodes = 0;
+            for m in run() {
+                let out = b.step(&m);
+                let o = m.observation();
+                let status = m.stamp.status();
+                let (action, episode) = if !o.found && status == StepStatus::Running {
+                    (a.skip(), None)
+                } else {
+                    let s = a.step(o.state(dof), step_kind(status));
+                    (s.action, s.episode)
+                };
+                assert_eq!(
+                    out.command.value.to_bits(),
+                    action.to_bits(),
+                    "{dof} seq {}",
+                    m.stamp.seq
+                );
+                assert_eq!(out.command.stamp, m.stamp);
+                match (out.stats, episode) {
+                    (Some(s), Some(e)) => {
+                        episodes += 1;
+                        assert_eq!(s.episode_return.to_bits(), e.return_.to_bits());
+                        assert_eq!(
+                            (s.gain, s.steps, s.actor_updates),
+                            (e.gain, e.steps, e.actor_updates)
+                        );
+                        assert_eq!((s.failed, s.learning), (e.failed as u8, 1));
+                        assert_eq!(s.stamp, m.stamp);
+                    }
+                    (None, None) => {}
+                    other => panic!("stats and episode disagree: {other:?}"),
+                }
+            }
+            assert_eq!(episodes, 2);
+            assert_eq!(b.checkpoint(), a.checkpoint());
+        }
+    }
+
+    #[test]
+    fn a_missed_frame_holds_still_and_the_yaw_state_is_theta() {
+        let (scenario, learning) = params();
+        let mut b = Behaviour::new(new_agent(Dof::Yaw, Algorithm::Nac, &scenario, &learning, 1));
+        let first = b.step(&obs(0, 0, 0, StepStatus::Running, true));
+        assert!(first.command.value != 0.0);
+        let missed = b.step(&obs(1, 0, 1, StepStatus::Running, false));
+        assert_eq!(missed.command.value, 0.0);
+        assert!(missed.stats.is_none());
+        // The skipped step still counts in the episode (its action was applied).
+        assert_eq!(b.agent().steps(), 1);
+    }
+
+    #[test]
+    fn a_new_episode_without_an_end_aborts_the_old_one() {
+        let (scenario, learning) = params();
+        let mut b = Behaviour::new(new_agent(
+            Dof::Sway,
+            Algorithm::Nac,
+            &scenario,
+            &learning,
+            1,
+        ));
+        b.step(&obs(0, 3, 0, StepStatus::Running, true));
+        b.step(&obs(1, 3, 1, StepStatus::Running, true));
+        // Episode 4 starts with no terminal step of episode 3: the pending step is dropped.
+        let out = b.step(&obs(2, 4, 0, StepStatus::Running, true));
+        assert!(out.stats.is_none());
+        assert_eq!((b.agent().episodes(), b.agent().steps()), (1, 1));
+        // After a proper end, the next episode is no abort.
+        let end = b.step(&obs(3, 4, 1, StepStatus::Lost, true));
+        assert_eq!(end.stats.map(|s| (s.steps, s.failed)), Some((1, 1)));
+        b.step(&obs(4, 5, 0, StepStatus::Running, true));
+        assert_eq!(b.agent().episodes(), 2);
+    }
+
+    #[test]
+    fn acting_only_reports_episodes_without_learning() {
+        let (scenario, learning) = params();
+        let mut agent = new_agent(Dof::Sway, Algorithm::Nac, &scenario, &learning, 1);
+        agent.set_learning(false);
+        let mut b = Behaviour::new(agent);
+        let stats: Vec<_> = run().iter().filter_map(|m| b.step(m).stats).collect();
+        assert_eq!(stats.len(), 2);
+        assert!(
+            stats
+                .iter()
+                .all(|s| s.learning == 0 && s.gain == [-1.2, -0.3])
+        );
+    }
+
+    #[test]
+    fn a_resumed_agent_draws_new_noise() {
+        let (scenario, learning) = params();
+        let mut a = new_agent(Dof::Sway, Algorithm::Nac, &scenario, &learning, 5);
+        assert_eq!(resume_seed(5, &a.checkpoint()), 5);
+        a.step([0.1, 0.0], StepKind::Running);
+        a.step([0.1, 0.0], StepKind::Running);
+        let s = a.checkpoint();
+        assert_ne!(resume_seed(5, &s), 5);
+        assert_eq!(resume_seed(5, &s), resume_seed(5, &s.clone()));
+    }
+}

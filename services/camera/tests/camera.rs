@@ -1,0 +1,168 @@
+//! The camera as a process: vehicle states over iceoryx2 in, camera frames out.
+
+use config::{Scenario, derive_seed};
+use messages::{
+    CableTruth, CameraFrameHeader, Endpoint, FrameInbox, Stamp, StepStatus, VehicleStateMsg, topics,
+};
+use model::{Cable, Pose, VehicleState, Velocity};
+use std::time::{Duration, Instant};
+use testkit::{Namespace, Probe, Process};
+
+const T: Duration = Duration::from_secs(10);
+const SEED: u64 = 11;
+
+fn scenario() -> Scenario {
+    config::load(&testkit::config_dir().join("scenario.toml")).expect("the repository's scenario")
+}
+
+/// A vehicle moving over the cable (so the image is blurred and the truth has rates).
+fn state(seq: u64) -> VehicleStateMsg {
+    let s = VehicleState {
+        pose: Pose {
+            x: 1.5,
+            y: -0.12,
+            psi: 0.35,
+        },
+        velocity: Velocity {
+            u: 0.28,
+            v: 0.06,
+            r: -0.12,
+        },
+    };
+    VehicleStateMsg::new(
+        Stamp::new(seq, seq * 200_000_000, 0, seq as u32, StepStatus::Running),
+        &s,
+        &s.pose_rate(),
+    )
+}
+
+/// The geometric camera's truth for a state.
+fn truth(scenario: &Scenario, st: &VehicleStateMsg) -> CableTruth {
+    let obs = model::Camera::new(&scenario.camera).observe(
+        &st.pose(),
+        &st.pose_rate(),
+        &Cable::new(&scenario.cable),
+        &scenario.observation,
+    );
+    assert!(obs.found, "the test's pose sees the cable");
+    CableTruth::from(&obs)
+}
+
+/// Blocks until a frame accepted by `want` arrives (header and a copy of the image).
+fn wait_frame(
+    probe: &Probe,
+    frames: &FrameInbox,
+    timeout: Duration,
+    mut want: impl FnMut(&CameraFrameHeader) -> bool,
+) -> Option<(CameraFrameHeader, Vec<u8>)> {
+    let end = Instant::now() + timeout;
+    loop {
+        while let Some((h, image)) = frames.receive_with(|h, d| (*h, d.to_vec())).unwrap() {
+            if want(&h) {
+                return Some((h, image));
+            }
+        }
+        let left = end.checked_duration_since(Instant::now())?;
+        probe.block_on(frames.listener(), left);
+    }
+}
+
+/// A camera process and the test's ports, connected.
+struct Rig {
+    probe: Probe,
+    states: messages::Outbox<VehicleStateMsg>,
+    frames: FrameInbox,
+    camera: Process,
+}
+
+fn rig(ns: &Namespace, eyes: &str) -> Rig {
+    let probe = ns.probe(Endpoint::Sim);
+    let frames = probe.frame_inbox();
+    let states = probe.outbox(&topics::VEHICLE_STATE);
+    let seed = SEED.to_string();
+    let camera = Process::start(
+        ns,
+        &testkit::binary("camera"),
+        &["--endpoint", "sim", "--seed", &seed, "--eyes", eyes],
+    );
+    // The camera opens its frame publisher before its state subscriber.
+    assert!(
+        probe.wait_for_subscribers(&states, 1, T),
+        "the camera never came up\n{}",
+        camera.log()
+    );
+    Rig {
+        probe,
+        states,
+        frames,
+        camera,
+    }
+}
+
+#[test]
+fn ideal_frames_carry_the_geometric_truth_and_no_image() {
+    let ns = Namespace::new("cami");
+    let r = rig(&ns, "ideal");
+    let st = state(3);
+    r.states.send(st).unwrap();
+    let (h, image) = wait_frame(&r.probe, &r.frames, T, |_| true)
+        .unwrap_or_else(|| panic!("a frame\n{}", r.camera.log()));
+    assert_eq!(h.stamp, st.stamp, "the stamp is copied unchanged");
+    assert_eq!((h.width, h.height), (320, 240));
+    assert_eq!(h.truth, truth(&scenario(), &st));
+    assert!(image.is_empty());
+}
+
+#[test]
+fn images_are_the_renderers_frames_with_the_truth() {
+    let ns = Namespace::new("camr");
+    let r = rig(&ns, "images");
+    let scenario = scenario();
+    let mut renderer =
+        vision::Renderer::from_scenario(&scenario, derive_seed(SEED, "render")).unwrap();
+    for seq in [5, 6] {
+        let st = state(seq);
+        r.states.send(st).unwrap();
+        let (h, image) = wait_frame(&r.probe, &r.frames, T, |h| h.stamp.seq == seq)
+            .unwrap_or_else(|| panic!("frame {seq}\n{}", r.camera.log()));
+        assert_eq!(h.stamp, st.stamp);
+        assert_eq!(h.truth, truth(&scenario, &st));
+        // The frames of a run count from 0 at seq 1, as the trainer's do.
+        let want = renderer.render_frame(&st.pose(), &st.pose_rate(), seq - 1);
+        assert_eq!(image.len(), 320 * 240);
+        for row in [0, 77, 120, 239] {
+            let span = row * 320..(row + 1) * 320;
+            assert_eq!(image[span.clone()], want.data()[span], "row {row}");
+        }
+        assert!(image == want.data(), "the whole frame");
+    }
+}
+
+#[test]
+fn a_repeated_state_gets_the_same_frame_and_an_older_one_none() {
+    let ns = Namespace::new("camo");
+    let r = rig(&ns, "images");
+    r.states.send(state(8)).unwrap();
+    let first = wait_frame(&r.probe, &r.frames, T, |_| true).expect("frame 8");
+    assert_eq!(first.0.stamp.seq, 8);
+    r.states.send(state(8)).unwrap();
+    let again = wait_frame(&r.probe, &r.frames, T, |_| true).expect("frame 8 again");
+    assert_eq!(again, first);
+    r.states.send(state(7)).unwrap();
+    r.states.send(state(9)).unwrap();
+    let next = wait_frame(&r.probe, &r.frames, T, |_| true).expect("frame 9");
+    assert_eq!(next.0.stamp.seq, 9, "nothing for the older state 7");
+}
+
+#[test]
+fn refuses_the_vehicle_endpoint() {
+    let ns = Namespace::new("camv");
+    let mut camera = Process::start(&ns, &testkit::binary("camera"), &["--endpoint", "vehicle"]);
+    let status = camera.wait(T).expect("it exits");
+    assert!(!status.success());
+    assert!(
+        camera.log().contains("`sim` endpoint only"),
+        "a clear error:\n{}",
+        camera.log()
+    );
+}

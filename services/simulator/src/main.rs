@@ -1,0 +1,146 @@
+//! `simulator`: drives the simulated mesh. Publishes each step's vehicle state, waits for the thruster
+//! setpoints answering it, integrates one control period and publishes the next (the protocol is
+//! `simulator::lockstep`).
+
+use clap::Parser;
+use messages::{Endpoint, topics};
+use runtime::{CommonArgs, Flow, Timer};
+use simulator::lockstep::{Advance, Cause, Lockstep, Reaction, Timing};
+use simulator::{Simulator, Status};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+#[derive(Parser)]
+#[command(
+    version,
+    about = "The simulated world: publishes each step's vehicle state and integrates the thruster setpoints answering it."
+)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// Re-publish the current state after this long without its setpoints (heals start-up races).
+    #[arg(long, default_value_t = 100)]
+    resend_ms: u64,
+    /// Once the mesh runs, a step whose setpoints do not arrive within this time is integrated with
+    /// zero thrust.
+    #[arg(long, default_value_t = 2000)]
+    deadline_ms: u64,
+    /// Stop after this many episodes (0: run forever).
+    #[arg(long, default_value_t = 0)]
+    episodes: u32,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    runtime::run("simulator", &args.common, |rt| {
+        if rt.endpoint() != Endpoint::Sim {
+            anyhow::bail!(
+                "the simulator serves the `sim` endpoint only; the `vehicle` endpoint is served by \
+                 the vehicle twin behind the hardware adapters"
+            );
+        }
+        let setpoints = rt.inbox(&topics::THRUSTER_SETPOINTS)?;
+        let states = rt.outbox(&topics::VEHICLE_STATE)?;
+        let timing = Timing::new(
+            Duration::from_millis(args.resend_ms),
+            Duration::from_millis(args.deadline_ms),
+        );
+        let sim = Simulator::new(rt.scenario(), rt.stream_seed("simulator"));
+        let mut lockstep = Lockstep::start(sim, timing, args.episodes, Instant::now());
+        states.send(lockstep.current().message())?;
+        tracing::info!(
+            episodes = args.episodes,
+            resend_ms = args.resend_ms,
+            deadline_ms = args.deadline_ms,
+            "published the first state; waiting for the mesh"
+        );
+
+        // The mesh's pace is measured from its first answer (start-up is not counted).
+        let mut running_since: Option<(Instant, u64)> = None;
+        let mut act = |reaction: Reaction| -> anyhow::Result<Flow> {
+            match reaction {
+                Reaction::Idle => {}
+                Reaction::Resend {
+                    step,
+                    waiting_for_mesh,
+                } => {
+                    if let Some(waited) = waiting_for_mesh {
+                        tracing::info!(
+                            seq = step.seq,
+                            waited_s = waited.as_secs(),
+                            subscribers = states.subscribers(),
+                            "waiting for the mesh: no setpoints yet"
+                        );
+                    }
+                    states.send(step.message())?;
+                }
+                Reaction::Advanced(advance) => {
+                    let (since, first) =
+                        *running_since.get_or_insert((Instant::now(), advance.closed.seq));
+                    report(&advance, args.episodes, since, first);
+                    match advance.next {
+                        Some(next) => {
+                            states.send(next.message())?;
+                        }
+                        None => return Ok(Flow::Stop),
+                    }
+                }
+            }
+            Ok(Flow::Continue)
+        };
+        rt.serve(
+            &[setpoints.listener()],
+            Timer::Timeout(timing.tick()),
+            |_| {
+                while let Some(sp) = setpoints.receive()? {
+                    let reaction =
+                        lockstep.on_setpoints(sp.stamp.seq, sp.as_slice(), Instant::now());
+                    if act(reaction)? == Flow::Stop {
+                        return Ok(Flow::Stop);
+                    }
+                }
+                act(lockstep.on_time(Instant::now()))
+            },
+        )?;
+        Ok(())
+    })
+}
+
+/// Logs a closed step: a missed deadline (WARN), an episode's end with the run's progress (INFO).
+fn report(advance: &Advance, episodes: u32, since: Instant, first: u64) {
+    let closed = &advance.closed;
+    if advance.cause == Cause::Deadline {
+        tracing::warn!(
+            seq = closed.seq,
+            episode = closed.step.episode,
+            step = closed.step.step,
+            waited_ms = advance.waited.as_millis() as u64,
+            "no setpoints within the deadline: stepping with zero thrust"
+        );
+    }
+    if let Some(end) = advance.ended {
+        let how = match end.status {
+            Status::Lost => "cable lost",
+            Status::TimeLimit => "time limit",
+            Status::Running => "running",
+        };
+        let of = if episodes == 0 {
+            "forever".to_owned()
+        } else {
+            episodes.to_string()
+        };
+        // Every published step so far, re-sends not counted; the pace since the mesh answered.
+        let steps = closed.seq;
+        let steps_per_s = (steps - first) as f64 / since.elapsed().as_secs_f64().max(1e-9);
+        tracing::info!(
+            episode = end.episode,
+            steps = end.steps,
+            end = how,
+            done = end.done,
+            of = %of,
+            total_steps = steps,
+            steps_per_s = steps_per_s.round() as u64,
+            "episode ended"
+        );
+    }
+}

@@ -1,0 +1,305 @@
+//! The supervisor's core: the mesh file (which services run, with which arguments, and how they are
+//! restarted) and the restart policy. Plain data and decisions; `main.rs` runs the processes.
+//!
+//! A mesh file (`config/sim-mesh.toml`, `config/vehicle.toml`):
+//!
+//! ```toml
+//! [mesh]
+//! endpoint = "sim"                      # passed to every service as --endpoint
+//! stop_when = ["simulator", "monitor"]  # done once all of these have exited successfully
+//! [restart]
+//! enabled = false                       # restart a service that dies (with backoff, up to a limit)
+//! [[service]]
+//! name = "simulator"
+//! args = ["--episodes", "{episodes}"]   # {key} comes from `supervisor --set key=value`
+//! ```
+
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// A mesh of services.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshFile {
+    pub mesh: MeshParams,
+    #[serde(default)]
+    pub restart: RestartPolicy,
+    pub service: Vec<ServiceSpec>,
+}
+
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshParams {
+    pub endpoint: String,
+    /// The mesh has done its job once all of these services have exited with success (empty: run
+    /// until SIGINT/SIGTERM).
+    #[serde(default)]
+    pub stop_when: Vec<String>,
+    /// Placeholder values used when the command line does not set them.
+    #[serde(default)]
+    pub defaults: BTreeMap<String, String>,
+}
+
+/// How dead services are restarted.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RestartPolicy {
+    pub enabled: bool,
+    /// Restarts of one service allowed within `window_s`; one more and the mesh is stopped.
+    pub max_restarts: u32,
+    pub window_s: f64,
+    /// The delay before a restart doubles with each recent restart, from this up to `backoff_max_ms`.
+    pub backoff_initial_ms: u64,
+    pub backoff_max_ms: u64,
+}
+
+impl Default for RestartPolicy {
+    fn default() -> Self {
+        RestartPolicy {
+            enabled: false,
+            max_restarts: 5,
+            window_s: 60.0,
+            backoff_initial_ms: 200,
+            backoff_max_ms: 5000,
+        }
+    }
+}
+
+impl RestartPolicy {
+    /// The delay before the next restart of a service that was restarted at `recent` (seconds ago,
+    /// any order), or `None` when it has used up its restarts.
+    pub fn next_delay(&self, recent: &[f64]) -> Option<Duration> {
+        let n = recent.iter().filter(|&&ago| ago <= self.window_s).count() as u32;
+        if !self.enabled || n >= self.max_restarts {
+            return None;
+        }
+        let ms = self
+            .backoff_initial_ms
+            .saturating_mul(1u64 << n.min(20))
+            .min(self.backoff_max_ms);
+        Some(Duration::from_millis(ms))
+    }
+}
+
+/// One service of the mesh.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServiceSpec {
+    pub name: String,
+    /// The program (default: `name`), looked up in the binaries' directory.
+    pub binary: Option<String>,
+    #[serde(default)]
+    pub args: Vec<String>,
+    /// Overrides `[restart] enabled` for this service.
+    pub restart: Option<bool>,
+}
+
+/// Why a mesh file cannot be used; names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshError {
+    #[error("cannot read mesh file {}: {source}", file.display())]
+    Read {
+        file: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("in mesh file {}: {source}", file.display())]
+    Parse {
+        file: PathBuf,
+        source: Box<toml::de::Error>,
+    },
+    #[error("in mesh file {}: {message}", file.display())]
+    Invalid { file: PathBuf, message: String },
+}
+
+impl MeshFile {
+    pub fn load(path: &Path) -> Result<MeshFile, MeshError> {
+        let text = std::fs::read_to_string(path).map_err(|source| MeshError::Read {
+            file: path.to_owned(),
+            source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    pub fn parse(text: &str, path: &Path) -> Result<MeshFile, MeshError> {
+        let mesh: MeshFile = toml::from_str(text).map_err(|source| MeshError::Parse {
+            file: path.to_owned(),
+            source: Box::new(source),
+        })?;
+        let invalid = |message: String| MeshError::Invalid {
+            file: path.to_owned(),
+            message,
+        };
+        mesh.mesh
+            .endpoint
+            .parse::<messages::Endpoint>()
+            .map_err(|e| invalid(format!("mesh.endpoint: {e}")))?;
+        if mesh.service.is_empty() {
+            return Err(invalid("no [[service]]".into()));
+        }
+        for (i, s) in mesh.service.iter().enumerate() {
+            if mesh.service[..i].iter().any(|o| o.name == s.name) {
+                return Err(invalid(format!("service `{}` is listed twice", s.name)));
+            }
+        }
+        for name in &mesh.mesh.stop_when {
+            if !mesh.service.iter().any(|s| &s.name == name) {
+                return Err(invalid(format!(
+                    "mesh.stop_when names `{name}`, which is not a [[service]]"
+                )));
+            }
+        }
+        Ok(mesh)
+    }
+
+    /// Each service's program and arguments, placeholders filled from `vars` (then the file's
+    /// defaults), `--endpoint` added.
+    pub fn commands(
+        &self,
+        vars: &BTreeMap<String, String>,
+        path: &Path,
+    ) -> Result<Vec<ServiceCommand>, MeshError> {
+        let mut all = self.mesh.defaults.clone();
+        all.extend(vars.iter().map(|(k, v)| (k.clone(), v.clone())));
+        self.service
+            .iter()
+            .map(|s| {
+                let mut args = vec!["--endpoint".to_owned(), self.mesh.endpoint.clone()];
+                for a in &s.args {
+                    args.push(substitute(a, &all).map_err(|key| MeshError::Invalid {
+                        file: path.to_owned(),
+                        message: format!(
+                            "service `{}`: no value for `{{{key}}}` (pass --set {key}=VALUE)",
+                            s.name
+                        ),
+                    })?);
+                }
+                Ok(ServiceCommand {
+                    name: s.name.clone(),
+                    binary: s.binary.clone().unwrap_or_else(|| s.name.clone()),
+                    args,
+                    restart: s.restart.unwrap_or(self.restart.enabled),
+                })
+            })
+            .collect()
+    }
+}
+
+/// A service ready to start.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ServiceCommand {
+    pub name: String,
+    pub binary: String,
+    pub args: Vec<String>,
+    pub restart: bool,
+}
+
+/// Replaces every `{key}` in `text`; the first key without a value is the error.
+pub fn substitute(text: &str, vars: &BTreeMap<String, String>) -> Result<String, String> {
+    let mut out = String::new();
+    let mut rest = text;
+    while let Some(open) = rest.find('{') {
+        let Some(close) = rest[open..].find('}') else {
+            break;
+        };
+        let key = &rest[open + 1..open + close];
+        out.push_str(&rest[..open]);
+        out.push_str(vars.get(key).ok_or_else(|| key.to_owned())?);
+        rest = &rest[open + close + 1..];
+    }
+    out.push_str(rest);
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MESH: &str = r#"
+[mesh]
+endpoint = "sim"
+stop_when = ["simulator"]
+defaults = { eyes = "ideal" }
+[restart]
+enabled = true
+[[service]]
+name = "simulator"
+args = ["--episodes", "{episodes}"]
+restart = false
+[[service]]
+name = "camera"
+args = ["--eyes", "{eyes}"]
+"#;
+
+    #[test]
+    fn commands_fill_placeholders_and_restart_policy() {
+        let mesh = MeshFile::parse(MESH, Path::new("m.toml")).unwrap();
+        let vars = BTreeMap::from([("episodes".to_owned(), "20".to_owned())]);
+        let cmds = mesh.commands(&vars, Path::new("m.toml")).unwrap();
+        assert_eq!(cmds[0].args, ["--endpoint", "sim", "--episodes", "20"]);
+        assert!(!cmds[0].restart);
+        assert_eq!(cmds[1].args, ["--endpoint", "sim", "--eyes", "ideal"]);
+        assert!(cmds[1].restart);
+        let err = mesh
+            .commands(&BTreeMap::new(), Path::new("m.toml"))
+            .unwrap_err();
+        assert!(
+            err.to_string().contains("{episodes}") && err.to_string().contains("m.toml"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn bad_files_are_refused_by_name() {
+        let bad = MESH.replace("stop_when = [\"simulator\"]", "stop_when = [\"simulatr\"]");
+        let err = MeshFile::parse(&bad, Path::new("x.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("x.toml") && err.contains("simulatr"), "{err}");
+        let err = MeshFile::parse(
+            &MESH.replace("args = [\"--eyes\"", "argz = [\"--eyes\""),
+            Path::new("x.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("argz"), "{err}");
+        let err = MeshFile::parse(&MESH.replace("\"sim\"", "\"boat\""), Path::new("x.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("endpoint"), "{err}");
+    }
+
+    #[test]
+    fn restarts_back_off_and_stop_at_the_limit() {
+        let p = RestartPolicy {
+            enabled: true,
+            max_restarts: 3,
+            window_s: 60.0,
+            backoff_initial_ms: 100,
+            backoff_max_ms: 300,
+        };
+        assert_eq!(p.next_delay(&[]), Some(Duration::from_millis(100)));
+        assert_eq!(p.next_delay(&[1.0]), Some(Duration::from_millis(200)));
+        assert_eq!(p.next_delay(&[1.0, 2.0]), Some(Duration::from_millis(300)));
+        assert_eq!(p.next_delay(&[1.0, 2.0, 3.0]), None);
+        // Old restarts fall out of the window.
+        assert_eq!(
+            p.next_delay(&[100.0, 200.0, 300.0]),
+            Some(Duration::from_millis(100))
+        );
+        assert_eq!(
+            RestartPolicy::default().next_delay(&[]),
+            None,
+            "off by default"
+        );
+    }
+
+    #[test]
+    fn substitution() {
+        let vars = BTreeMap::from([("a".to_owned(), "1".to_owned())]);
+        assert_eq!(substitute("x{a}y{a}", &vars).unwrap(), "x1y1");
+        assert_eq!(substitute("plain", &vars).unwrap(), "plain");
+        assert_eq!(substitute("{b}", &vars).unwrap_err(), "b");
+    }
+}

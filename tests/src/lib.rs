@@ -1,0 +1,140 @@
+//! The harness of the system tests: runs the service mesh (`config/sim-mesh.toml`, through the real
+//! `supervisor`) in a test's own iceoryx2 namespace and reads back what it recorded.
+
+use messages::{CableObservationMsg, Endpoint, topics};
+use serde::Deserialize;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+use testkit::{Namespace, Process};
+
+/// What the monitor recorded of a run (`scripts/sim-mesh --json`).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+pub struct RunRecord {
+    pub episodes: usize,
+    pub yaw: Vec<f64>,
+    pub sway: Vec<f64>,
+    pub steps: u64,
+    pub wall_s: f64,
+    pub lost: Vec<bool>,
+}
+
+/// An observation seen by the test while the mesh ran.
+#[derive(Clone, Copy, Debug)]
+pub struct Seen {
+    pub episode: u32,
+    pub step: u32,
+    pub found: bool,
+    pub x_g: f64,
+    pub theta: f64,
+}
+
+/// A finished mesh run.
+pub struct MeshRun {
+    pub record: RunRecord,
+    /// The observations the test's probe received (it may miss some: it is not part of the lockstep).
+    pub seen: Vec<Seen>,
+    pub log: String,
+}
+
+/// How to run the mesh.
+pub struct MeshOptions {
+    pub episodes: usize,
+    pub seed: u64,
+    /// `ideal` or `images`.
+    pub eyes: &'static str,
+    /// Watch the observations.
+    pub watch: bool,
+    pub timeout: Duration,
+}
+
+impl Default for MeshOptions {
+    fn default() -> Self {
+        MeshOptions {
+            episodes: 5,
+            seed: 1,
+            eyes: "ideal",
+            watch: false,
+            timeout: Duration::from_secs(60),
+        }
+    }
+}
+
+/// Runs the mesh to the end in `ns` and returns what it recorded.
+pub fn run_mesh(ns: &Namespace, opts: &MeshOptions) -> MeshRun {
+    let dir = tempfile::tempdir().expect("a temporary directory");
+    let json: PathBuf = dir.path().join("run.json");
+    let probe = ns.probe(Endpoint::Sim);
+    let observations = opts.watch.then(|| probe.inbox(&topics::CABLE_OBSERVATION));
+    let settings = ns.settings();
+    let seed = opts.seed.to_string();
+    let args = [
+        "--mesh".to_owned(),
+        testkit::config_dir()
+            .join("sim-mesh.toml")
+            .display()
+            .to_string(),
+        "--seed".into(),
+        seed,
+        "--iox-prefix".into(),
+        settings.prefix.clone(),
+        "--iox-root".into(),
+        settings.root.clone(),
+        "--set".into(),
+        format!("episodes={}", opts.episodes),
+        "--set".into(),
+        format!("eyes={}", opts.eyes),
+        "--set".into(),
+        format!("json={}", json.display()),
+        "--set".into(),
+        format!("state={}", dir.path().display()),
+    ];
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let mut supervisor = Process::start(ns, &testkit::binary("supervisor"), &args);
+    let end = Instant::now() + opts.timeout;
+    let mut seen = Vec::new();
+    let status = loop {
+        if let Some(inbox) = &observations {
+            while let Some(o) = inbox.receive().expect("receiving") {
+                seen.push(seen_of(&o));
+            }
+            probe.block_on(inbox.listener(), Duration::from_millis(50));
+        }
+        if let Some(status) = supervisor.wait(if observations.is_some() {
+            Duration::ZERO
+        } else {
+            Duration::from_millis(100)
+        }) {
+            break status;
+        }
+        assert!(
+            Instant::now() < end,
+            "the mesh did not finish in {:?}:\n{}",
+            opts.timeout,
+            supervisor.log()
+        );
+    };
+    let log = supervisor.log();
+    assert!(status.success(), "the mesh failed ({status:?}):\n{log}");
+    let text = std::fs::read_to_string(&json)
+        .unwrap_or_else(|e| panic!("no run record at {}: {e}\n{log}", json.display()));
+    MeshRun {
+        record: serde_json::from_str(&text).expect("a run record"),
+        seen,
+        log,
+    }
+}
+
+fn seen_of(o: &CableObservationMsg) -> Seen {
+    Seen {
+        episode: o.stamp.episode,
+        step: o.stamp.step,
+        found: o.observation.found != 0,
+        x_g: o.observation.x_g,
+        theta: o.observation.theta,
+    }
+}
+
+/// The mean of `values`.
+pub fn mean(values: &[f64]) -> f64 {
+    values.iter().sum::<f64>() / values.len().max(1) as f64
+}
