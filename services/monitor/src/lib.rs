@@ -28,6 +28,31 @@ pub struct RunRecord {
     pub lost: Vec<bool>,
 }
 
+/// One observation of a trace (the state-trace figures: Theta and x_g over a trial).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
+pub struct TracePoint {
+    pub episode: u32,
+    pub step: u32,
+    /// Time since the episode started (s).
+    pub time_s: f64,
+    pub found: bool,
+    pub x_g: f64,
+    pub theta: f64,
+}
+
+impl TracePoint {
+    pub fn new(o: &messages::CableObservationMsg, sample_time_s: f64) -> Self {
+        TracePoint {
+            episode: o.stamp.episode,
+            step: o.stamp.step,
+            time_s: o.stamp.step as f64 * sample_time_s,
+            found: o.observation.found != 0,
+            x_g: o.observation.x_g,
+            theta: o.observation.theta,
+        }
+    }
+}
+
 /// Pairs reports by episode.
 #[derive(Debug, Default)]
 pub struct Episodes {

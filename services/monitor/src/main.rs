@@ -1,10 +1,12 @@
 //! `monitor`: prints each episode's returns as the mesh learns, and writes the run's record.
 
+use anyhow::Context;
 use clap::Parser;
 use config::Dof;
 use messages::topics;
-use monitor::Episodes;
+use monitor::{Episodes, TracePoint};
 use runtime::{CommonArgs, Flow, Timer};
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -23,6 +25,9 @@ struct Args {
     /// Write {"episodes","yaw","sway","steps","wall_s","lost"} here when stopping.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Also record every observation, one JSON line each: {"episode","step","time_s","found","x_g","theta"}.
+    #[arg(long)]
+    trace: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -32,13 +37,34 @@ fn main() -> ExitCode {
             (Dof::Sway, rt.inbox(&topics::SWAY_LEARNING)?),
             (Dof::Yaw, rt.inbox(&topics::YAW_LEARNING)?),
         ];
+        let (trace_in, mut trace_out) = match &args.trace {
+            Some(path) => (
+                Some(rt.inbox(&topics::CABLE_OBSERVATION)?),
+                Some(std::io::BufWriter::new(
+                    std::fs::File::create(path)
+                        .with_context(|| format!("creating the trace {}", path.display()))?,
+                )),
+            ),
+            None => (None, None),
+        };
         let mut episodes = Episodes::new();
         let start = Instant::now();
-        let listeners = [inboxes[0].1.listener(), inboxes[1].1.listener()];
+        let mut listeners = vec![inboxes[0].1.listener(), inboxes[1].1.listener()];
+        if let Some(observations) = &trace_in {
+            listeners.push(observations.listener());
+        }
         println!(
             "episode | steps | lost |  yaw return | sway return | yaw K              | sway K"
         );
+        let sample_time = rt.scenario().timing.sample_time_s;
         rt.serve(&listeners, Timer::Timeout(Duration::from_secs(10)), |_| {
+            if let (Some(observations), Some(out)) = (&trace_in, &mut trace_out) {
+                for o in observations.drain()? {
+                    let line = TracePoint::new(&o, sample_time);
+                    serde_json::to_writer(&mut *out, &line)?;
+                    out.write_all(b"\n")?;
+                }
+            }
             for (dof, inbox) in &inboxes {
                 for stats in inbox.drain()? {
                     if let Some(r) = episodes.add(*dof, stats) {
@@ -52,6 +78,9 @@ fn main() -> ExitCode {
             let done = episodes.done().len();
             Ok(if args.episodes > 0 && done >= args.episodes { Flow::Stop } else { Flow::Continue })
         })?;
+        if let Some(out) = &mut trace_out {
+            out.flush()?;
+        }
         let record = episodes.record(start.elapsed().as_secs_f64());
         tracing::info!(
             episodes = record.episodes,

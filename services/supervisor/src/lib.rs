@@ -167,13 +167,17 @@ impl MeshFile {
             .map(|s| {
                 let mut args = vec!["--endpoint".to_owned(), self.mesh.endpoint.clone()];
                 for a in &s.args {
-                    args.push(substitute(a, &all).map_err(|key| MeshError::Invalid {
+                    let arg = substitute(a, &all).map_err(|key| MeshError::Invalid {
                         file: path.to_owned(),
                         message: format!(
                             "service `{}`: no value for `{{{key}}}` (pass --set {key}=VALUE)",
                             s.name
                         ),
-                    })?);
+                    })?;
+                    // An argument that is only an empty placeholder is left out: optional flags.
+                    if !arg.is_empty() {
+                        args.push(arg);
+                    }
                 }
                 Ok(ServiceCommand {
                     name: s.name.clone(),
@@ -241,6 +245,16 @@ args = ["--eyes", "{eyes}"]
         assert!(!cmds[0].restart);
         assert_eq!(cmds[1].args, ["--endpoint", "sim", "--eyes", "ideal"]);
         assert!(cmds[1].restart);
+        let optional = BTreeMap::from([
+            ("episodes".to_owned(), "5".to_owned()),
+            ("eyes".to_owned(), String::new()),
+        ]);
+        let cmds = mesh.commands(&optional, Path::new("m.toml")).unwrap();
+        assert_eq!(
+            cmds[1].args,
+            ["--endpoint", "sim", "--eyes"],
+            "an empty placeholder is left out"
+        );
         let err = mesh
             .commands(&BTreeMap::new(), Path::new("m.toml"))
             .unwrap_err();

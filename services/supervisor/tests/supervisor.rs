@@ -1,0 +1,143 @@
+//! The supervisor as the vehicle runs it: restarts a service that dies, and stops everything cleanly.
+
+use messages::{Endpoint, topics};
+use std::path::Path;
+use std::time::Duration;
+use testkit::{Namespace, Process};
+
+const T: Duration = Duration::from_secs(30);
+
+/// A mesh of the seven services that runs until stopped, restarting what dies.
+fn restarting_mesh(dir: &Path) -> std::path::PathBuf {
+    let text = std::fs::read_to_string(testkit::config_dir().join("sim-mesh.toml"))
+        .unwrap()
+        .replace("stop_when = [\"simulator\", \"monitor\"]", "stop_when = []")
+        .replace("enabled = false", "enabled = true");
+    let path = dir.join("mesh.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// The supervisor's children: (pid, program name).
+fn children(pid: i32) -> Vec<(i32, String)> {
+    let list = std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children")).unwrap_or_default();
+    list.split_whitespace()
+        .filter_map(|p| p.parse().ok())
+        .map(|p: i32| {
+            let comm = std::fs::read_to_string(format!("/proc/{p}/comm")).unwrap_or_default();
+            (p, comm.trim().to_owned())
+        })
+        .collect()
+}
+
+fn alive(pid: i32) -> bool {
+    // A zombie still has a /proc entry; its state is Z.
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .map(|s| !s.split_whitespace().nth(2).is_some_and(|state| state == "Z"))
+        .unwrap_or(false)
+}
+
+fn start(ns: &Namespace, mesh: &Path, state: &Path) -> Process {
+    let settings = ns.settings();
+    let args = [
+        "--mesh".to_owned(),
+        mesh.display().to_string(),
+        "--iox-prefix".into(),
+        settings.prefix,
+        "--iox-root".into(),
+        settings.root,
+        "--set".into(),
+        "eyes=ideal".into(),
+        "--set".into(),
+        "episodes=0".into(),
+        "--set".into(),
+        format!("state={}", state.display()),
+        "--set".into(),
+        format!("json={}", state.join("run.json").display()),
+    ];
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    Process::start(ns, &testkit::binary("supervisor"), &args)
+}
+
+#[test]
+fn a_service_killed_with_sigkill_is_restarted_and_the_loop_resumes_then_sigterm_leaves_nothing() {
+    let ns = Namespace::new("sup");
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = restarting_mesh(dir.path());
+    let probe = ns.probe(Endpoint::Sim);
+    let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
+    let mut supervisor = start(&ns, &mesh, dir.path());
+
+    let before = probe.wait_for(&setpoints, T, |s| s.stamp.seq > 20).expect("the mesh runs");
+    let perception = children(supervisor.pid())
+        .into_iter()
+        .find(|(_, name)| name == "perception")
+        .expect("perception is one of the supervisor's children");
+    // SAFETY: kill(2) on a process of this test's mesh.
+    unsafe {
+        libc::kill(perception.0, libc::SIGKILL);
+    }
+    // The loop resumes well past the step at which perception died, with a new perception process.
+    let after = probe
+        .wait_for(&setpoints, T, |s| s.stamp.seq > before.stamp.seq + 50)
+        .unwrap_or_else(|| panic!("the loop did not resume:\n{}", supervisor.log()));
+    let new_perception = children(supervisor.pid())
+        .into_iter()
+        .find(|(_, name)| name == "perception")
+        .expect("perception was restarted");
+    assert_ne!(new_perception.0, perception.0);
+    let log = supervisor.log();
+    assert!(log.contains("died") && log.contains("restarting"), "every exit and restart is logged:\n{log}");
+    println!("resumed: setpoints of step {} after the kill at step {}", after.stamp.seq, before.stamp.seq);
+
+    let pids: Vec<i32> = children(supervisor.pid()).into_iter().map(|(p, _)| p).collect();
+    assert_eq!(pids.len(), 8, "seven services and the monitor run");
+    drop(setpoints);
+    drop(probe);
+    let status = supervisor.terminate(T);
+    assert!(status.success(), "the supervisor stops cleanly: {status:?}\n{}", supervisor.log());
+    for pid in pids {
+        assert!(!alive(pid), "process {pid} survived the supervisor");
+    }
+    assert!(ns.leftovers().is_empty(), "shared memory left behind: {:?}", ns.leftovers());
+    // The behaviours saved what they learned on the way out.
+    assert!(dir.path().join("sway.ckpt").exists() && dir.path().join("yaw.ckpt").exists());
+}
+
+#[test]
+fn a_service_that_keeps_dying_stops_the_mesh_with_an_error() {
+    let ns = Namespace::new("sud");
+    let dir = tempfile::tempdir().unwrap();
+    let text = r#"
+[mesh]
+endpoint = "sim"
+[restart]
+enabled = true
+max_restarts = 2
+backoff_initial_ms = 10
+[[service]]
+name = "broken"
+binary = "simulator"
+args = ["--config", "/nonexistent"]
+"#;
+    let mesh = dir.path().join("mesh.toml");
+    std::fs::write(&mesh, text).unwrap();
+    let mut supervisor = Process::start(&ns, &testkit::binary("supervisor"), &["--mesh", mesh.to_str().unwrap()]);
+    let status = supervisor.wait(T).expect("the supervisor gives up");
+    assert!(!status.success());
+    let log = supervisor.log();
+    assert_eq!(log.matches("restarting").count(), 2, "two restarts, then it gives up:\n{log}");
+    assert!(log.contains("is not restarted"), "{log}");
+}
+
+#[test]
+fn a_bad_mesh_file_is_refused_by_name() {
+    let ns = Namespace::new("sub");
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = dir.path().join("mesh.toml");
+    std::fs::write(&mesh, "[mesh]\nendpoint = \"sim\"\n[[service]]\nname = \"camera\"\nargz = []\n").unwrap();
+    let mut supervisor = Process::start(&ns, &testkit::binary("supervisor"), &["--mesh", mesh.to_str().unwrap()]);
+    let status = supervisor.wait(T).unwrap();
+    assert!(!status.success());
+    assert!(supervisor.log().contains("mesh.toml") && supervisor.log().contains("argz"), "{}", supervisor.log());
+}
