@@ -103,25 +103,27 @@ fn the_same_seed_gives_the_same_returns_twice() {
     assert_ne!(a.yaw, c.yaw, "another seed, other episodes");
 }
 
-/// With ideal perception the mesh and the in-process trainer run the same cores on the same random
-/// streams in the same order: the returns are the same to the last bit.
-#[test]
-fn the_mesh_and_the_trainer_agree_with_ideal_perception() {
-    let (seed, episodes) = (7, 10);
+/// Runs the mesh and the in-process trainer on the same seed and asserts the same returns.
+fn assert_mesh_equals_trainer(label: &str, eyes: EyesKind, seed: u64, episodes: usize) {
     let run = run_mesh(
-        &Namespace::new("mti"),
+        &Namespace::new(label),
         &MeshOptions {
             episodes,
             seed,
-            eyes: "ideal",
+            eyes: if eyes == EyesKind::Ideal {
+                "ideal"
+            } else {
+                "images"
+            },
             ..Default::default()
         },
     );
-    let (yaw, sway) = trainer_returns(EyesKind::Ideal, seed, episodes);
+    let (yaw, sway) = trainer_returns(eyes, seed, episodes);
     for (dof, mesh, trainer) in [
         ("yaw", &run.record.yaw, &yaw),
         ("sway", &run.record.sway, &sway),
     ] {
+        assert_eq!(mesh.len(), trainer.len());
         for (e, (m, t)) in mesh.iter().zip(trainer).enumerate() {
             assert!(
                 (m - t).abs() <= 1e-9 * t.abs().max(1.0),
@@ -129,6 +131,21 @@ fn the_mesh_and_the_trainer_agree_with_ideal_perception() {
             );
         }
     }
+}
+
+/// With ideal perception the mesh and the in-process trainer run the same cores on the same random
+/// streams in the same order: the returns are the same to the last bit.
+#[test]
+fn the_mesh_and_the_trainer_agree_with_ideal_perception() {
+    assert_mesh_equals_trainer("mti", EyesKind::Ideal, 7, 10);
+}
+
+/// With rendered images and perception in the loop, the mesh renders the trainer's frames (same
+/// seed stream, same frame numbers) and runs the same perception: the returns agree exactly too, a
+/// stronger check than "statistically the same".
+#[test]
+fn the_mesh_and_the_trainer_agree_with_image_perception() {
+    assert_mesh_equals_trainer("mtm", EyesKind::Images, 3, 4);
 }
 
 /// After every process of a mesh is killed with SIGKILL (no chance to clean up), the next run in the
@@ -172,33 +189,4 @@ fn a_mesh_killed_with_sigkill_leaves_nothing_that_stops_the_next_run() {
         "left behind: {:?}",
         ns.leftovers()
     );
-}
-
-/// With rendered images and perception in the loop, the mesh renders the trainer's frames (same
-/// seed stream, same frame numbers) and runs the same perception: the returns agree exactly too, a
-/// stronger check than "statistically the same".
-#[test]
-fn the_mesh_and_the_trainer_agree_with_image_perception() {
-    let (seed, episodes) = (3, 4);
-    let run = run_mesh(
-        &Namespace::new("mtm"),
-        &MeshOptions {
-            episodes,
-            seed,
-            eyes: "images",
-            ..Default::default()
-        },
-    );
-    let (yaw, sway) = trainer_returns(EyesKind::Images, seed, episodes);
-    for (dof, mesh, trainer) in [
-        ("yaw", &run.record.yaw, &yaw),
-        ("sway", &run.record.sway, &sway),
-    ] {
-        for (e, (m, t)) in mesh.iter().zip(trainer).enumerate() {
-            assert!(
-                (m - t).abs() <= 1e-9 * t.abs().max(1.0),
-                "{dof} episode {e}: mesh {m} vs trainer {t}"
-            );
-        }
-    }
 }

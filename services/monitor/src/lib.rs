@@ -18,7 +18,7 @@ pub struct EpisodeRecord {
 }
 
 /// The JSON record of a mesh run (`scripts/sim-mesh --json FILE`).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct RunRecord {
     pub episodes: usize,
     pub yaw: Vec<f64>,

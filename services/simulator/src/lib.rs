@@ -152,10 +152,8 @@ impl Simulator {
 
 /// A pose with the cable seen at x_g ~ U[-x_g_max, x_g_max] and Theta ~ U[-theta_max, theta_max].
 ///
-/// Theta fixes the heading; x_g then fixes the offset across the cable, found by bisection on the
-/// camera's own geometry (x_g falls monotonically as the vehicle moves to the cable's right), so the
-/// start state is exact for any camera mounting. A draw the image cannot show (e.g. a large x_g with
-/// a nearly horizontal line) is drawn again.
+/// The pose comes from [`Camera::pose_for`], exact in the camera's own geometry; a draw the image
+/// cannot show (e.g. a large x_g with a nearly horizontal line) is drawn again.
 pub fn sample_start_pose(
     camera: &Camera,
     cable: &Cable,
@@ -167,7 +165,7 @@ pub fn sample_start_pose(
         let x_g = rng.random_range(-reset.x_g_max..=reset.x_g_max);
         let theta = rng.random_range(-theta_max..=theta_max);
         let along = rng.random_range(-reset.along_cable_m..=reset.along_cable_m);
-        if let Some(pose) = pose_for(camera, cable, x_g, theta, along) {
+        if let Some(pose) = camera.pose_for(cable, x_g, theta, along) {
             return pose;
         }
     }
@@ -178,45 +176,6 @@ pub fn sample_start_pose(
         y: p[1],
         psi: cable.heading,
     }
-}
-
-/// The pose `along` metres down the cable from which the camera sees the cable at (x_g, theta), if any.
-pub fn pose_for(camera: &Camera, cable: &Cable, x_g: f64, theta: f64, along: f64) -> Option<Pose> {
-    let psi = model::wrap_pi(cable.heading - theta);
-    let pose_at = |across: f64| {
-        let p = cable.point(along, across);
-        Pose {
-            x: p[0],
-            y: p[1],
-            psi,
-        }
-    };
-    // x_g as a monotone function of `across`, the vehicle's offset to the cable's right; out of view
-    // the cable is past the border on one side.
-    let x_g_at = |across: f64| match camera.view(&pose_at(across), cable) {
-        Some(line) => line.x_g,
-        None => {
-            if across > 0.0 {
-                -1.0
-            } else {
-                1.0
-            }
-        }
-    };
-    let reach = (camera.width().hypot(camera.height())) * camera.metres_per_px();
-    let (mut lo, mut hi) = (-reach, reach); // x_g_at(lo) > x_g > x_g_at(hi)
-    for _ in 0..80 {
-        let mid = 0.5 * (lo + hi);
-        if x_g_at(mid) > x_g {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    let pose = pose_at(0.5 * (lo + hi));
-    let line = camera.view(&pose, cable)?;
-    ((line.x_g - x_g).abs() < 1e-6 && (model::wrap_half_pi(line.theta - theta)).abs() < 1e-9)
-        .then_some(pose)
 }
 
 #[cfg(test)]
@@ -241,24 +200,6 @@ mod tests {
                 .expect("cable in view at reset");
             assert!(line.x_g.abs() <= s.reset.x_g_max + 1e-6);
             assert!(line.theta.abs() <= s.reset.theta_max_deg.to_radians() + 1e-9);
-        }
-    }
-
-    #[test]
-    fn pose_for_inverts_the_camera() {
-        let s = scenario();
-        let camera = Camera::new(&s.camera);
-        let cable = Cable::new(&config::CableParams {
-            x_m: 2.0,
-            y_m: -1.0,
-            heading_deg: 30.0,
-            width_m: 0.05,
-        });
-        for (x_g, theta_deg) in [(0.0, 0.0), (0.3, -40.0), (-0.35, 45.0), (0.1, 10.0)] {
-            let theta = f64::to_radians(theta_deg);
-            let pose = pose_for(&camera, &cable, x_g, theta, 1.5).expect("reachable");
-            let line = camera.view(&pose, &cable).unwrap();
-            assert!((line.x_g - x_g).abs() < 1e-6 && (line.theta - theta).abs() < 1e-9);
         }
     }
 

@@ -20,7 +20,8 @@ fn restarting_mesh(dir: &Path) -> std::path::PathBuf {
 
 /// The supervisor's children: (pid, program name).
 fn children(pid: i32) -> Vec<(i32, String)> {
-    let list = std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children")).unwrap_or_default();
+    let list =
+        std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children")).unwrap_or_default();
     list.split_whitespace()
         .filter_map(|p| p.parse().ok())
         .map(|p: i32| {
@@ -68,7 +69,9 @@ fn a_service_killed_with_sigkill_is_restarted_and_the_loop_resumes_then_sigterm_
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
     let mut supervisor = start(&ns, &mesh, dir.path());
 
-    let before = probe.wait_for(&setpoints, T, |s| s.stamp.seq > 20).expect("the mesh runs");
+    let before = probe
+        .wait_for(&setpoints, T, |s| s.stamp.seq > 20)
+        .expect("the mesh runs");
     let perception = children(supervisor.pid())
         .into_iter()
         .find(|(_, name)| name == "perception")
@@ -87,19 +90,36 @@ fn a_service_killed_with_sigkill_is_restarted_and_the_loop_resumes_then_sigterm_
         .expect("perception was restarted");
     assert_ne!(new_perception.0, perception.0);
     let log = supervisor.log();
-    assert!(log.contains("died") && log.contains("restarting"), "every exit and restart is logged:\n{log}");
-    println!("resumed: setpoints of step {} after the kill at step {}", after.stamp.seq, before.stamp.seq);
+    assert!(
+        log.contains("died") && log.contains("restarting"),
+        "every exit and restart is logged:\n{log}"
+    );
+    println!(
+        "resumed: setpoints of step {} after the kill at step {}",
+        after.stamp.seq, before.stamp.seq
+    );
 
-    let pids: Vec<i32> = children(supervisor.pid()).into_iter().map(|(p, _)| p).collect();
+    let pids: Vec<i32> = children(supervisor.pid())
+        .into_iter()
+        .map(|(p, _)| p)
+        .collect();
     assert_eq!(pids.len(), 8, "seven services and the monitor run");
     drop(setpoints);
     drop(probe);
     let status = supervisor.terminate(T);
-    assert!(status.success(), "the supervisor stops cleanly: {status:?}\n{}", supervisor.log());
+    assert!(
+        status.success(),
+        "the supervisor stops cleanly: {status:?}\n{}",
+        supervisor.log()
+    );
     for pid in pids {
         assert!(!alive(pid), "process {pid} survived the supervisor");
     }
-    assert!(ns.leftovers().is_empty(), "shared memory left behind: {:?}", ns.leftovers());
+    assert!(
+        ns.leftovers().is_empty(),
+        "shared memory left behind: {:?}",
+        ns.leftovers()
+    );
     // The behaviours saved what they learned on the way out.
     assert!(dir.path().join("sway.ckpt").exists() && dir.path().join("yaw.ckpt").exists());
 }
@@ -122,11 +142,19 @@ args = ["--config", "/nonexistent"]
 "#;
     let mesh = dir.path().join("mesh.toml");
     std::fs::write(&mesh, text).unwrap();
-    let mut supervisor = Process::start(&ns, &testkit::binary("supervisor"), &["--mesh", mesh.to_str().unwrap()]);
+    let mut supervisor = Process::start(
+        &ns,
+        &testkit::binary("supervisor"),
+        &["--mesh", mesh.to_str().unwrap()],
+    );
     let status = supervisor.wait(T).expect("the supervisor gives up");
     assert!(!status.success());
     let log = supervisor.log();
-    assert_eq!(log.matches("restarting").count(), 2, "two restarts, then it gives up:\n{log}");
+    assert_eq!(
+        log.matches("restarting").count(),
+        2,
+        "two restarts, then it gives up:\n{log}"
+    );
     assert!(log.contains("is not restarted"), "{log}");
 }
 
@@ -135,9 +163,21 @@ fn a_bad_mesh_file_is_refused_by_name() {
     let ns = Namespace::new("sub");
     let dir = tempfile::tempdir().unwrap();
     let mesh = dir.path().join("mesh.toml");
-    std::fs::write(&mesh, "[mesh]\nendpoint = \"sim\"\n[[service]]\nname = \"camera\"\nargz = []\n").unwrap();
-    let mut supervisor = Process::start(&ns, &testkit::binary("supervisor"), &["--mesh", mesh.to_str().unwrap()]);
+    std::fs::write(
+        &mesh,
+        "[mesh]\nendpoint = \"sim\"\n[[service]]\nname = \"camera\"\nargz = []\n",
+    )
+    .unwrap();
+    let mut supervisor = Process::start(
+        &ns,
+        &testkit::binary("supervisor"),
+        &["--mesh", mesh.to_str().unwrap()],
+    );
     let status = supervisor.wait(T).unwrap();
     assert!(!status.success());
-    assert!(supervisor.log().contains("mesh.toml") && supervisor.log().contains("argz"), "{}", supervisor.log());
+    assert!(
+        supervisor.log().contains("mesh.toml") && supervisor.log().contains("argz"),
+        "{}",
+        supervisor.log()
+    );
 }

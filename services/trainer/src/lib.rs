@@ -5,6 +5,7 @@
 pub mod experiment;
 pub mod figures;
 pub mod progress;
+pub mod report;
 pub mod world;
 
 use config::{ConfigError, LearningParams, ObservationLimits, PerDof, Preset, Scenario};

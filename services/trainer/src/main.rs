@@ -126,6 +126,12 @@ enum Command {
         #[arg(long, default_value_t = 200)]
         episodes: usize,
     },
+    /// The two-step job's report (Markdown and PNG) from the runs in a directory (see
+    /// scripts/two-step-learning).
+    Report {
+        #[arg(long)]
+        dir: PathBuf,
+    },
     /// The LQR-optimal linear policy of each DOF and its mean return: the yardstick for Fig. 5.
     Limit {
         #[arg(long, default_value_t = 4000)]
@@ -234,6 +240,15 @@ fn run(cli: Cli) -> Result<()> {
             out,
             cells,
         } => policy_map(&setup, &checkpoint, &out, cells),
+        Command::Report { dir } => {
+            let path = trainer::report::write(&dir, &setup.scenario)?;
+            println!(
+                "wrote {} and {}",
+                path.display(),
+                dir.join("summary.json").display()
+            );
+            Ok(())
+        }
         Command::Bench { repeats, episodes } => bench(&setup, repeats.max(1), episodes.max(1)),
         Command::Limit {
             episodes,

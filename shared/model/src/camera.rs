@@ -40,6 +40,29 @@ pub struct CableLine {
 }
 
 impl CableLine {
+    /// The line of eq. (2), `rho = x cos(theta) + y sin(theta)` in centred pixel coordinates, as it
+    /// crosses a `width x height` image; `None` when it misses the image.
+    pub fn from_polar(rho: f64, theta: f64, width: f64, height: f64) -> Option<CableLine> {
+        let (st, ct) = theta.sin_cos();
+        let q0 = [rho * ct, rho * st];
+        // The direction pointing up (or right when horizontal), as `Camera::view` orients it.
+        let e = if -ct < 0.0 || (ct == 0.0 && st > 0.0) {
+            [st, -ct]
+        } else {
+            [-st, ct]
+        };
+        let (t0, t1) = clip_line(q0, e, 0.5 * width, 0.5 * height)?;
+        let upper = [q0[0] + t1 * e[0], q0[1] + t1 * e[1]];
+        let lower = [q0[0] + t0 * e[0], q0[1] + t0 * e[1]];
+        Some(CableLine {
+            rho,
+            theta,
+            x_g: 0.5 * (upper[0] + lower[0]) / width,
+            y_g: 0.5 * (upper[1] + lower[1]) / height,
+            ends: [upper, lower],
+        })
+    }
+
     /// Length of the visible part of the line (pixels).
     pub fn visible_px(&self) -> f64 {
         let [a, b] = self.ends;
@@ -214,6 +237,46 @@ impl Camera {
             theta_rate: theta_rate.clamp(-limits.theta_rate_max, limits.theta_rate_max),
             confidence: 1.0,
         }
+    }
+
+    /// The pose `along` metres down the cable from which this camera sees the cable at `x_g` and
+    /// `theta`, if the image can show it there (a large x_g with a nearly horizontal line cannot be).
+    ///
+    /// Theta fixes the heading; x_g then fixes the offset across the cable, found by bisection on the
+    /// camera's own geometry (x_g falls monotonically as the vehicle moves to the cable's right), so
+    /// the pose is exact for any mounting of the camera.
+    pub fn pose_for(&self, cable: &Cable, x_g: f64, theta: f64, along: f64) -> Option<Pose> {
+        let psi = crate::wrap_pi(cable.heading - theta);
+        let pose_at = |across: f64| {
+            let p = cable.point(along, across);
+            Pose {
+                x: p[0],
+                y: p[1],
+                psi,
+            }
+        };
+        // The offset at which the camera (not the vehicle's centre) is over the cable.
+        let centre = -cable.offset(self.position(&pose_at(0.0)));
+        // Out of view the cable is past the border on one side.
+        let x_g_at = |across: f64| match self.view(&pose_at(across), cable) {
+            Some(line) => line.x_g,
+            None if across > centre => -1.0,
+            None => 1.0,
+        };
+        let reach = self.width.hypot(self.height) * self.metres_per_px();
+        let (mut lo, mut hi) = (centre - reach, centre + reach); // x_g_at(lo) > x_g > x_g_at(hi)
+        for _ in 0..80 {
+            let mid = 0.5 * (lo + hi);
+            if x_g_at(mid) > x_g {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        let pose = pose_at(0.5 * (lo + hi));
+        let line = self.view(&pose, cable)?;
+        ((line.x_g - x_g).abs() < 1e-6 && wrap_half_pi(line.theta - theta).abs() < 1e-9)
+            .then_some(pose)
     }
 
     /// [`Camera::observe`] for a vehicle state in still water.
@@ -478,6 +541,56 @@ mod tests {
         };
         let obs = cam.observe_state(&fast, &cable, &ObservationLimits::default());
         assert_eq!((obs.x_g_rate, obs.theta_rate), (-0.5, -1.0));
+    }
+
+    #[test]
+    fn a_line_from_polar_coordinates_is_the_line_the_camera_sees() {
+        let cam = camera();
+        let cable = Cable::default();
+        for (y, psi) in [
+            (0.0, 0.0),
+            (0.2, 0.3),
+            (-0.3, 60f64.to_radians()),
+            (0.1, -80f64.to_radians()),
+        ] {
+            let seen = cam.view(&Pose { x: 0.0, y, psi }, &cable).unwrap();
+            let from = CableLine::from_polar(seen.rho, seen.theta, 320.0, 240.0).unwrap();
+            assert!((from.x_g - seen.x_g).abs() < 1e-12 && (from.y_g - seen.y_g).abs() < 1e-12);
+            for k in 0..2 {
+                assert!(
+                    (from.ends[k][0] - seen.ends[k][0]).abs() < 1e-9
+                        && (from.ends[k][1] - seen.ends[k][1]).abs() < 1e-9
+                );
+            }
+        }
+        assert!(CableLine::from_polar(500.0, 0.0, 320.0, 240.0).is_none());
+    }
+
+    #[test]
+    fn pose_for_inverts_the_view_for_any_mounting() {
+        let cable = Cable {
+            origin: [2.0, -1.0],
+            heading: 30f64.to_radians(),
+            width_m: 0.05,
+        };
+        for mount in [(0.0, 0.0), (0.15, 0.05)] {
+            let cam = Camera::new(&CameraParams {
+                mount_x_m: mount.0,
+                mount_y_m: mount.1,
+                ..CameraParams::default()
+            });
+            for (x_g, theta_deg) in [(0.0, 0.0), (0.3, -40.0), (-0.35, 45.0), (0.1, 10.0)] {
+                let theta = f64::to_radians(theta_deg);
+                let pose = cam.pose_for(&cable, x_g, theta, 1.5).expect("reachable");
+                let line = cam.view(&pose, &cable).unwrap();
+                assert!(
+                    (line.x_g - x_g).abs() < 1e-6 && (line.theta - theta).abs() < 1e-9,
+                    "mount {mount:?}"
+                );
+            }
+        }
+        // A mid point outside the image cannot be seen.
+        assert!(camera().pose_for(&cable, 0.6, 0.0, 0.0).is_none());
     }
 
     #[test]

@@ -32,43 +32,7 @@ pub fn line_from_normal(
 
 /// The line of eq. (2) with `rho`, `theta` in a `width x height` image; `None` when it misses it.
 pub fn line_from_polar(rho: f64, theta: f64, width: f64, height: f64) -> Option<CableLine> {
-    let (st, ct) = theta.sin_cos();
-    let q0 = [rho * ct, rho * st];
-    // Direction pointing up (e_y < 0), or right when horizontal, as model::Camera::view orients it.
-    let e = [st, -ct];
-    let (t0, t1) = clip_line(q0, e, 0.5 * width, 0.5 * height)?;
-    let (a, b) = if e[1] < 0.0 || (e[1] == 0.0 && e[0] > 0.0) {
-        (t1, t0)
-    } else {
-        (t0, t1)
-    };
-    let upper = [q0[0] + a * e[0], q0[1] + a * e[1]];
-    let lower = [q0[0] + b * e[0], q0[1] + b * e[1]];
-    Some(CableLine {
-        rho,
-        theta,
-        x_g: 0.5 * (upper[0] + lower[0]) / width,
-        y_g: 0.5 * (upper[1] + lower[1]) / height,
-        ends: [upper, lower],
-    })
-}
-
-/// Clips the line `q0 + t e` to `|x| <= hw, |y| <= hh` (Liang-Barsky): the parameter interval inside.
-fn clip_line(q0: [f64; 2], e: [f64; 2], hw: f64, hh: f64) -> Option<(f64, f64)> {
-    let mut t0 = f64::NEG_INFINITY;
-    let mut t1 = f64::INFINITY;
-    for (p, d, half) in [(q0[0], e[0], hw), (q0[1], e[1], hh)] {
-        if d.abs() < 1e-15 {
-            if p.abs() > half {
-                return None;
-            }
-            continue;
-        }
-        let (a, b) = ((-half - p) / d, (half - p) / d);
-        t0 = t0.max(a.min(b));
-        t1 = t1.min(a.max(b));
-    }
-    (t1 > t0).then_some((t0, t1))
+    CableLine::from_polar(rho, theta, width, height)
 }
 
 /// Centred pixel coordinates of the centre of pixel (column `i`, row `j`).

@@ -1,12 +1,11 @@
 //! Poses that put the cable where a test or a data set wants it in the image.
 
 use crate::rng::SplitMix64;
-use model::{Cable, Camera, Pose, PoseRate, Velocity, wrap_half_pi};
+use model::{Cable, Camera, Pose, PoseRate, Velocity};
 
 /// The pose, at `along_m` metres along the cable, from which the camera sees the cable at `x_g`
-/// (fraction of the width) and `theta` (rad); `None` when no such pose exists (e.g. `x_g` beyond
-/// the border for that angle). Found by bisection on the offset across the cable, through
-/// [`Camera::view`], so the result is exact in the camera's own geometry.
+/// (fraction of the width) and `theta` (rad); `None` when no such pose exists. See
+/// [`Camera::pose_for`].
 pub fn pose_for_line(
     camera: &Camera,
     cable: &Cable,
@@ -14,36 +13,7 @@ pub fn pose_for_line(
     theta: f64,
     along_m: f64,
 ) -> Option<Pose> {
-    // Theta = wrap(cable heading - psi) for a camera looking straight down.
-    let psi = cable.heading - theta;
-    let pose_at = |across: f64| {
-        let p = cable.point(along_m, across);
-        Pose {
-            x: p[0],
-            y: p[1],
-            psi,
-        }
-    };
-    // The camera is over the cable at this offset; x_g decreases as the vehicle moves across.
-    let centre = -cable.offset(camera.position(&pose_at(0.0)));
-    let x_g_at = |across: f64| match camera.view(&pose_at(across), cable) {
-        Some(line) => line.x_g,
-        None if across > centre => -1.0,
-        None => 1.0,
-    };
-    let reach = 2.0 * (camera.width().hypot(camera.height())) * camera.metres_per_px();
-    let (mut lo, mut hi) = (centre - reach, centre + reach);
-    for _ in 0..100 {
-        let mid = 0.5 * (lo + hi);
-        if x_g_at(mid) > x_g {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    let pose = pose_at(0.5 * (lo + hi));
-    let line = camera.view(&pose, cable)?;
-    ((line.x_g - x_g).abs() < 1e-6 && wrap_half_pi(line.theta - theta).abs() < 1e-9).then_some(pose)
+    camera.pose_for(cable, x_g, theta, along_m)
 }
 
 /// Draws poses with the cable in view: x_g ~ U[-x_g_max, x_g_max], Theta ~ U[-theta_max, theta_max]

@@ -1,0 +1,311 @@
+//! The two-step job's report: the paper's figures and a table of returns, from what the runs left in
+//! one directory (`scripts/two-step-learning` lays it out):
+//!
+//! ```text
+//! DIR/fig5/fig5.json                 step one's learning curves over 100 runs (trainer fig5)
+//! DIR/step-one/run.json, *.ckpt      step one through the mesh: per-episode returns, the policies
+//! DIR/eval/run.json, trace.jsonl     the simulation policy on the vehicle (twin), not learning
+//! DIR/step-two/run.json, trace.jsonl, *.ckpt   online learning on the vehicle: per trial
+//! ```
+//!
+//! It writes `DIR/report/report.md` with its PNG figures, and `DIR/summary.json`.
+
+use crate::figures::{Fig5, PolicyMap, write_json};
+use anyhow::{Context, Result};
+use config::{Dof, Scenario};
+use learning::checkpoint::Checkpoint;
+use monitor::{RunRecord, TracePoint};
+use plot::{Figure, LineChart, Panel, Series};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// `DIR/summary.json`: per-episode returns in simulation, per-trial returns on the vehicle.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Summary {
+    pub sim: Returns,
+    pub vehicle: Returns,
+    /// The simulation policy on the vehicle before learning there (Figs. 8, 9).
+    pub vehicle_before_learning: Returns,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Returns {
+    pub yaw: Vec<f64>,
+    pub sway: Vec<f64>,
+}
+
+impl From<&RunRecord> for Returns {
+    fn from(r: &RunRecord) -> Self {
+        Returns {
+            yaw: r.yaw.clone(),
+            sway: r.sway.clone(),
+        }
+    }
+}
+
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))
+}
+
+/// The traces of a run, by episode.
+fn read_trace(path: &Path) -> Result<BTreeMap<u32, Vec<TracePoint>>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut by_episode: BTreeMap<u32, Vec<TracePoint>> = BTreeMap::new();
+    for (i, line) in text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+    {
+        let p: TracePoint = serde_json::from_str(line)
+            .with_context(|| format!("{}: line {}", path.display(), i + 1))?;
+        by_episode.entry(p.episode).or_default().push(p);
+    }
+    for points in by_episode.values_mut() {
+        points.sort_by_key(|p| p.step);
+        points.dedup_by_key(|p| p.step);
+    }
+    Ok(by_episode)
+}
+
+fn gains(path: &Path) -> Result<Vec<(Dof, [f64; 2])>> {
+    let ckpt = Checkpoint::load(path)?;
+    Ok(Dof::ALL
+        .iter()
+        .filter_map(|&d| ckpt.get(d).map(|s| (d, s.policy.gain)))
+        .collect())
+}
+
+/// Theta and x_g over time for some episodes of a trace: the paper's state-trace figures.
+fn traces(title: &str, fig: (&str, &str), episodes: &[(String, &Vec<TracePoint>)]) -> Figure {
+    let series = |f: fn(&TracePoint) -> f64| {
+        episodes
+            .iter()
+            .map(|(name, points)| {
+                let seen: Vec<&TracePoint> = points.iter().filter(|p| p.found).collect();
+                Series::new(
+                    name.clone(),
+                    seen.iter().map(|p| p.time_s).collect(),
+                    seen.iter().map(|p| f(p)).collect(),
+                )
+            })
+            .collect()
+    };
+    let chart = |label: &str, y: &str, s| {
+        let mut c = LineChart::new(format!("{label}: {title}"), "time (s)", y);
+        c.series = s;
+        Panel::Lines(c)
+    };
+    Figure::new(
+        vec![
+            chart(fig.0, "Theta (deg)", series(|p| p.theta.to_degrees())),
+            chart(fig.1, "x_g", series(|p| p.x_g)),
+        ],
+        2,
+    )
+}
+
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len().max(1) as f64
+}
+
+/// Writes the report of `dir`; returns the path of `report.md`.
+pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
+    let out = dir.join("report");
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let sim: RunRecord = read_json(&dir.join("step-one/run.json"))?;
+    let eval: RunRecord = read_json(&dir.join("eval/run.json"))?;
+    let vehicle: RunRecord = read_json(&dir.join("step-two/run.json"))?;
+    let mut md = String::new();
+    writeln!(md, "# Two-step NAC learning for cable tracking: report\n")?;
+    writeln!(
+        md,
+        "Step one: {} episodes in simulation, every service a process. Step two: the simulation policy on the \
+         vehicle (its twin) for {} trials without learning, then {} trials of online learning.\n",
+        sim.episodes, eval.episodes, vehicle.episodes
+    )?;
+
+    // Fig. 5.
+    let fig5_json = dir.join("fig5/fig5.json");
+    if fig5_json.exists() {
+        let fig5: Fig5 = read_json(&fig5_json)?;
+        fig5.figure().save_png(&out.join("fig5.png"))?;
+        writeln!(md, "## Fig. 5: learning curves in simulation\n")?;
+        writeln!(
+            md,
+            "NAC against Baxter and Bartlett's policy gradient, {} runs of {} episodes (in one process), with the \
+             LQR limit.\n\n![Fig. 5](fig5.png)\n",
+            fig5.runs, fig5.episodes
+        )?;
+    }
+    let step_one = |dof: Dof, r: &RunRecord| {
+        let v = if dof == Dof::Yaw { &r.yaw } else { &r.sway };
+        let mut c = LineChart::new(
+            format!("{dof}: return per episode"),
+            "episode",
+            "total reward",
+        );
+        c.series = vec![Series::from_y("step one, the mesh", v.clone())];
+        Panel::Lines(c)
+    };
+    Figure::new(vec![step_one(Dof::Yaw, &sim), step_one(Dof::Sway, &sim)], 2)
+        .save_png(&out.join("step-one.png"))?;
+    writeln!(
+        md,
+        "Step one through the service mesh (this run):\n\n![step one](step-one.png)\n"
+    )?;
+
+    // Figs. 6, 7, 12, 13: the policies.
+    let maps = |ckpt_dir: &Path,
+                figs: (&str, &str),
+                when: &str,
+                file: &str,
+                md: &mut String|
+     -> Result<()> {
+        let mut panels = Vec::new();
+        for (dof, file_name) in [(Dof::Sway, "sway.ckpt"), (Dof::Yaw, "yaw.ckpt")] {
+            for (d, gain) in gains(&ckpt_dir.join(file_name))? {
+                if d == dof {
+                    let fig = if dof == Dof::Sway { figs.0 } else { figs.1 };
+                    panels.push(
+                        PolicyMap::new(dof, gain, scenario, 41)
+                            .panel(&format!("{fig}, {dof} {when}")),
+                    );
+                }
+            }
+        }
+        Figure::new(panels, 2).save_png(&out.join(file))?;
+        writeln!(md, "![{when}]({file})\n")?;
+        Ok(())
+    };
+    writeln!(md, "## Figs. 6 and 7: the policies learned in simulation\n")?;
+    maps(
+        &dir.join("step-one"),
+        ("Fig. 6", "Fig. 7"),
+        "after simulation",
+        "policy-sim.png",
+        &mut md,
+    )?;
+
+    // Figs. 8, 9: the simulation policy on the vehicle.
+    let eval_trace = read_trace(&dir.join("eval/trace.jsonl"))?;
+    let eps: Vec<(String, &Vec<TracePoint>)> = eval_trace
+        .iter()
+        .map(|(e, p)| (format!("attempt {}", e + 1), p))
+        .collect();
+    traces(
+        "simulation policy on the vehicle",
+        ("Fig. 8", "Fig. 9"),
+        &eps,
+    )
+    .save_png(&out.join("twin-sim-policy.png"))?;
+    writeln!(
+        md,
+        "## Figs. 8 and 9: the simulation policy on the vehicle\n"
+    )?;
+    writeln!(
+        md,
+        "Mean return per attempt: yaw {:.3}, sway {:.4} (in simulation, the last {} episodes of step one: yaw {:.3}, \
+         sway {:.4}); cable lost in {} of {} attempts.\n\n![Figs. 8 and 9](twin-sim-policy.png)\n",
+        mean(&eval.yaw),
+        mean(&eval.sway),
+        sim.episodes.min(10),
+        mean(&sim.yaw[sim.yaw.len().saturating_sub(10)..]),
+        mean(&sim.sway[sim.sway.len().saturating_sub(10)..]),
+        eval.lost.iter().filter(|l| **l).count(),
+        eval.episodes
+    )?;
+
+    // Figs. 10, 11: improvement over trials.
+    let trial_trace = read_trace(&dir.join("step-two/trace.jsonl"))?;
+    let n = vehicle.episodes.max(1) as u32;
+    let mut picks: Vec<u32> = vec![0, n / 4, n / 2, n - 1];
+    picks.dedup();
+    let eps: Vec<(String, &Vec<TracePoint>)> = picks
+        .iter()
+        .filter_map(|e| trial_trace.get(e).map(|p| (format!("trial {}", e + 1), p)))
+        .collect();
+    traces("learning on the vehicle", ("Fig. 10", "Fig. 11"), &eps)
+        .save_png(&out.join("step-two-traces.png"))?;
+    let per_trial = |dof: Dof| {
+        let v = if dof == Dof::Yaw {
+            &vehicle.yaw
+        } else {
+            &vehicle.sway
+        };
+        let x: Vec<f64> = (1..=v.len()).map(|t| t as f64).collect();
+        let mut c = LineChart::new(
+            format!("{dof}: return per trial on the vehicle"),
+            "trial",
+            "total reward",
+        );
+        c.series = vec![Series::new("online learning", x, v.clone())];
+        c.ref_lines = vec![plot::RefLine::new(
+            "simulation policy, not learning",
+            mean(if dof == Dof::Yaw {
+                &eval.yaw
+            } else {
+                &eval.sway
+            }),
+        )];
+        Panel::Lines(c)
+    };
+    Figure::new(vec![per_trial(Dof::Yaw), per_trial(Dof::Sway)], 2)
+        .save_png(&out.join("step-two-returns.png"))?;
+    let k = (vehicle.episodes / 4).max(1);
+    writeln!(
+        md,
+        "## Figs. 10 and 11: policy improvement on the vehicle\n"
+    )?;
+    writeln!(
+        md,
+        "Mean return of the first {k} trials: yaw {:.3}, sway {:.4}; of the last {k}: yaw {:.3}, sway {:.4}.\n\n\
+         ![Figs. 10 and 11](step-two-traces.png)\n\n![returns per trial](step-two-returns.png)\n",
+        mean(&vehicle.yaw[..k]),
+        mean(&vehicle.sway[..k]),
+        mean(&vehicle.yaw[vehicle.yaw.len() - k..]),
+        mean(&vehicle.sway[vehicle.sway.len() - k..]),
+    )?;
+    writeln!(
+        md,
+        "## Figs. 12 and 13: the policies after learning on the vehicle\n"
+    )?;
+    maps(
+        &dir.join("step-two"),
+        ("Fig. 12", "Fig. 13"),
+        "after vehicle learning",
+        "policy-vehicle.png",
+        &mut md,
+    )?;
+
+    writeln!(md, "## Returns per trial on the vehicle\n")?;
+    writeln!(
+        md,
+        "| trial | steps | cable lost | yaw return | sway return |\n|---:|---:|:---:|---:|---:|"
+    )?;
+    for t in 0..vehicle.episodes {
+        let steps = trial_trace.get(&(t as u32)).map_or(0, |p| p.len());
+        writeln!(
+            md,
+            "| {} | {} | {} | {:.3} | {:.4} |",
+            t + 1,
+            steps,
+            if vehicle.lost[t] { "yes" } else { "" },
+            vehicle.yaw[t],
+            vehicle.sway[t]
+        )?;
+    }
+    let path = out.join("report.md");
+    std::fs::write(&path, md).with_context(|| format!("writing {}", path.display()))?;
+    let summary = Summary {
+        sim: (&sim).into(),
+        vehicle: (&vehicle).into(),
+        vehicle_before_learning: (&eval).into(),
+    };
+    write_json(&dir.join("summary.json"), &summary).with_context(|| "writing summary.json")?;
+    Ok(path)
+}
