@@ -11,6 +11,8 @@
 //! has the noise of frame index `k` of the renderer seeded with the run's `render` stream, exactly
 //! the frame the in-process trainer's `vision::SimulatedVision` renders for the same step. A state
 //! re-sent by the simulator therefore renders to the same bytes again.
+//!
+//! On the vehicle endpoint the camera reads a frame source instead ([`vehicle`]).
 
 use config::{ObservationLimits, Scenario};
 use messages::{CableTruth, CameraFrameHeader, Stamp, VehicleStateMsg};
@@ -114,6 +116,8 @@ impl SimCamera {
         }
     }
 }
+
+pub mod vehicle;
 
 #[cfg(test)]
 mod tests {

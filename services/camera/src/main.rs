@@ -1,65 +1,150 @@
-//! `camera`: each vehicle state in, its camera frame out (the image rendered straight into shared
-//! memory, the geometric truth in the header). One frame per step: a re-sent state gets the same
-//! frame again, an older one nothing.
+//! `camera`: on the sim endpoint, each vehicle state in, its camera frame out (the image rendered
+//! straight into shared memory, the geometric truth in the header); one frame per step: a re-sent
+//! state gets the same frame again, an older one nothing. On the vehicle endpoint, each frame of the
+//! vehicle's frame source out, stamped for the mesh (`camera::vehicle`).
 
+use adapters::replay::{Pacing, ReplaySource};
+use adapters::twin::TwinFrameSource;
+use adapters::{Frame, FrameSource, Wake};
+use camera::vehicle::{Publish, SeqMap, SourceSpec, VehicleCamera};
 use camera::{Eyes, SimCamera};
 use clap::Parser;
 use messages::{CameraFrameHeader, Endpoint, topics};
 use runtime::lockstep::{Once, Outcome};
-use runtime::{CommonArgs, Flow, Timer};
+use runtime::{CommonArgs, Flow, Runtime, Timer};
 use std::convert::Infallible;
 use std::process::ExitCode;
+use std::time::{Duration, Instant};
 
 #[derive(Parser)]
 #[command(
     version,
-    about = "The simulated downward camera: a frame (geometric truth, rendered image) for each vehicle state."
+    about = "The downward camera: a frame for each simulated vehicle state (sim endpoint), or the vehicle's frame source's frames (vehicle endpoint)."
 )]
 struct Args {
     #[command(flatten)]
     common: CommonArgs,
-    /// `ideal`: frames carry the geometric truth only; `images`: a rendered image too.
+    /// Sim endpoint: `ideal`: frames carry the geometric truth only; `images`: a rendered image too.
     #[arg(long, value_enum, default_value = "ideal")]
     eyes: Eyes,
+    /// Vehicle endpoint: the frame source, `twin` (the vehicle twin's camera) or `replay:DIR` (a
+    /// recorded dive) [default: twin].
+    #[arg(long, value_name = "twin|replay:DIR")]
+    source: Option<SourceSpec>,
+    /// Vehicle endpoint, replay: play the dive K times faster than recorded.
+    #[arg(long, value_name = "K")]
+    speed: Option<f64>,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    runtime::run("camera", &args.common, |rt| {
-        if rt.endpoint() != Endpoint::Sim {
-            anyhow::bail!(
-                "the camera serves the `sim` endpoint only for now: on the `vehicle` endpoint it \
-                 reads a frame source, which is not built yet"
-            );
+    runtime::run("camera", &args.common, |rt| match rt.endpoint() {
+        Endpoint::Sim => {
+            if args.source.is_some() || args.speed.is_some() {
+                anyhow::bail!(
+                    "--source and --speed are for the `vehicle` endpoint; on `sim` the camera \
+                     renders the simulator's states"
+                );
+            }
+            serve_sim(rt, &args)
         }
-        let mut camera = SimCamera::new(rt.scenario(), args.eyes, rt.stream_seed("render"))?;
-        // The frame publisher first: once the state subscriber is seen, frames can flow.
-        let frames = rt.frame_outbox()?;
-        let states = rt.inbox(&topics::VEHICLE_STATE)?;
-        tracing::info!(eyes = ?args.eyes, "ready");
-        let mut once = Once::<CameraFrameHeader>::new();
-        let mut on_input = || -> anyhow::Result<Flow> {
-            // Only the newest state matters: the simulator waits on it, older ones were answered
-            // (or overtaken by a deadline).
-            let Some(state) = states.drain()?.into_iter().max_by_key(|s| s.stamp.seq) else {
+        Endpoint::Vehicle => serve_vehicle(rt, &args),
+    })
+}
+
+fn serve_sim(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
+    let mut camera = SimCamera::new(rt.scenario(), args.eyes, rt.stream_seed("render"))?;
+    // The frame publisher first: once the state subscriber is seen, frames can flow.
+    let frames = rt.frame_outbox()?;
+    let states = rt.inbox(&topics::VEHICLE_STATE)?;
+    tracing::info!(eyes = ?args.eyes, "ready");
+    let mut once = Once::<CameraFrameHeader>::new();
+    let mut on_input = || -> anyhow::Result<Flow> {
+        // Only the newest state matters: the simulator waits on it, older ones were answered
+        // (or overtaken by a deadline).
+        let Some(state) = states.drain()?.into_iter().max_by_key(|s| s.stamp.seq) else {
+            return Ok(Flow::Continue);
+        };
+        let header = match once.step(state.stamp.seq, || {
+            Ok::<_, Infallible>(camera.header(&state))
+        }) {
+            Ok(Outcome::Fresh(h) | Outcome::Repeat(h)) => h,
+            Ok(Outcome::Stale) => {
+                tracing::debug!(seq = state.stamp.seq, "an older state: dropped");
                 return Ok(Flow::Continue);
-            };
-            let header = match once.step(state.stamp.seq, || {
-                Ok::<_, Infallible>(camera.header(&state))
-            }) {
-                Ok(Outcome::Fresh(h) | Outcome::Repeat(h)) => h,
-                Ok(Outcome::Stale) => {
-                    tracing::debug!(seq = state.stamp.seq, "an older state: dropped");
-                    return Ok(Flow::Continue);
+            }
+        };
+        // A repeat is rendered again: the same seed and frame index give the same bytes.
+        frames.send_with(header, camera.image_len(), |image| {
+            camera.render(&state, image)
+        })??;
+        Ok(Flow::Continue)
+    };
+    rt.serve(&[states.listener()], Timer::None, |_| on_input())?;
+    Ok(())
+}
+
+/// With a live source, say so when no frame came for this long.
+const QUIET_NOTE: Duration = Duration::from_secs(5);
+
+fn serve_vehicle(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
+    let c = &rt.scenario().camera;
+    let spec = args.source.clone().unwrap_or(SourceSpec::Twin);
+    let source: Box<dyn FrameSource> = match &spec {
+        SourceSpec::Twin => {
+            if args.speed.is_some() {
+                anyhow::bail!("--speed paces a replay; the twin's pace is the twin's own");
+            }
+            Box::new(TwinFrameSource::open(rt.node(), c.width, c.height)?)
+        }
+        SourceSpec::Replay(dir) => {
+            let speed = args.speed.unwrap_or(1.0);
+            Box::new(ReplaySource::open(dir, Pacing::Speed(speed))?)
+        }
+    };
+    let mut camera = VehicleCamera::new((c.width, c.height), SeqMap::starting_now());
+    camera.check(source.as_ref()).map_err(anyhow::Error::msg)?;
+    let frames = rt.frame_outbox()?;
+    let (inputs, timer) = match source.wake() {
+        Wake::Listener(l) => (vec![l], Timer::Timeout(QUIET_NOTE)),
+        Wake::Every(period) => (Vec::new(), Timer::Interval(period)),
+    };
+    tracing::info!(source = %source.describe(), "ready");
+    let mut frame = Frame::default();
+    let mut last_frame = Instant::now();
+    rt.serve(&inputs, timer, |_| {
+        // Every frame due now, in order: the mesh answers each step once.
+        loop {
+            let now = Instant::now();
+            let read = match source.read(now, &mut frame) {
+                Ok(r) => r,
+                Err(e) => {
+                    // A broken frame is skipped; the vehicle's loop goes on with the next.
+                    tracing::warn!(source = %source.describe(), "frame skipped: {e}");
+                    continue;
                 }
             };
-            // A repeat is rendered again: the same seed and frame index give the same bytes.
-            frames.send_with(header, camera.image_len(), |image| {
-                camera.render(&state, image)
+            // A repeat refills the frame with the repeated image.
+            let header = match camera.on_read(read, &frame.meta) {
+                Publish::New(h) | Publish::Again(h) => h,
+                Publish::Wait => {
+                    if !inputs.is_empty() && last_frame.elapsed() >= QUIET_NOTE {
+                        tracing::info!(source = %source.describe(), published = camera.published(), "no frame from the source for 5 s");
+                        last_frame = Instant::now();
+                    }
+                    return Ok(Flow::Continue);
+                }
+                Publish::End => {
+                    tracing::info!(source = %source.describe(), published = camera.published(), "the source ended");
+                    return Ok(Flow::Stop);
+                }
+            };
+            last_frame = Instant::now();
+            frames.send_with(header, frame.image.len(), |out| {
+                out.copy_from_slice(&frame.image);
+                Ok::<_, Infallible>(())
             })??;
-            Ok(Flow::Continue)
-        };
-        rt.serve(&[states.listener()], Timer::None, |_| on_input())?;
-        Ok(())
-    })
+        }
+    })?;
+    Ok(())
 }

@@ -154,15 +154,101 @@ fn a_repeated_state_gets_the_same_frame_and_an_older_one_none() {
     assert_eq!(next.0.stamp.seq, 9, "nothing for the older state 7");
 }
 
+/// On the vehicle endpoint the camera publishes its frame source's frames: here a recorded dive,
+/// paced by its timestamps, each frame with the dive's time, trial, step and status, the camera's
+/// own increasing seq (the dive's gaps kept), and its image; at the dive's end the camera stops.
 #[test]
-fn refuses_the_vehicle_endpoint() {
+fn on_the_vehicle_endpoint_a_recorded_dive_is_published_with_its_stamps() {
+    use adapters::replay::{DiveWriter, ImageFormat};
+    let ns = Namespace::new("camd");
+    let tmp = tempfile::tempdir().unwrap();
+    let dive = tmp.path().join("dive");
+    let frames: Vec<adapters::Frame> = adapters::conformance::sample_frames(320, 240);
+    let mut w = DiveWriter::create(&dive, 320, 240, true, ImageFormat::Png).unwrap();
+    for f in &frames {
+        w.write(&f.meta, &f.image).unwrap();
+    }
+    w.finish().unwrap();
+
+    let probe = ns.probe(Endpoint::Vehicle);
+    let inbox = probe.frame_inbox();
+    let source = format!("replay:{}", dive.display());
+    let mut camera = Process::start(
+        &ns,
+        &testkit::binary("camera"),
+        &["--endpoint", "vehicle", "--source", &source, "--speed", "4"],
+    );
+    let mut got = Vec::new();
+    for f in &frames {
+        let (h, image) = wait_frame(&probe, &inbox, T, |_| true)
+            .unwrap_or_else(|| panic!("frame {}\n{}", f.meta.seq, camera.log()));
+        let m = &f.meta;
+        assert_eq!(
+            (
+                h.stamp.time_ns,
+                h.stamp.episode,
+                h.stamp.step,
+                h.stamp.status()
+            ),
+            (m.time_ns, m.trial, m.step, m.status),
+            "frame {}",
+            m.seq
+        );
+        assert_eq!((h.width, h.height), (320, 240));
+        assert_eq!(Some(h.truth), m.truth);
+        assert!(image == f.image, "frame {}'s image", m.seq);
+        got.push(h.stamp.seq);
+    }
+    for (k, w) in got.windows(2).enumerate() {
+        assert_eq!(
+            w[1] - w[0],
+            frames[k + 1].meta.seq - frames[k].meta.seq,
+            "gaps kept"
+        );
+    }
+    assert!(
+        got[0] > 1_700_000_000_000_000,
+        "the camera's base: its start time in us"
+    );
+    let status = camera.wait(T).expect("the camera stops at the dive's end");
+    assert!(status.success(), "{}", camera.log());
+    assert!(
+        camera.log().contains("the source ended"),
+        "{}",
+        camera.log()
+    );
+}
+
+#[test]
+fn a_missing_dive_and_a_source_on_the_sim_endpoint_are_refused() {
     let ns = Namespace::new("camv");
-    let mut camera = Process::start(&ns, &testkit::binary("camera"), &["--endpoint", "vehicle"]);
+    let mut camera = Process::start(
+        &ns,
+        &testkit::binary("camera"),
+        &[
+            "--endpoint",
+            "vehicle",
+            "--source",
+            "replay:/nonexistent/dive",
+        ],
+    );
     let status = camera.wait(T).expect("it exits");
     assert!(!status.success());
     assert!(
-        camera.log().contains("`sim` endpoint only"),
+        camera.log().contains("/nonexistent/dive/index.csv"),
         "a clear error:\n{}",
+        camera.log()
+    );
+    let mut camera = Process::start(
+        &ns,
+        &testkit::binary("camera"),
+        &["--endpoint", "sim", "--source", "twin"],
+    );
+    let status = camera.wait(T).expect("it exits");
+    assert!(!status.success());
+    assert!(
+        camera.log().contains("`vehicle` endpoint"),
+        "{}",
         camera.log()
     );
 }

@@ -83,6 +83,38 @@ impl Allocator {
     }
 }
 
+/// Which thruster sink the allocator writes on the vehicle endpoint.
+///
+/// On the vehicle endpoint the allocator publishes each step's setpoints on its setpoint topic, as
+/// on the sim endpoint (for monitors and recorders), *and* writes them to the vehicle's thruster
+/// sink (`adapters`), which drives the thrusters. On the sim endpoint the simulator reads the topic
+/// and there is no sink.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum SinkSpec {
+    /// The vehicle twin's thrusters (`cabletrack/twin/thrusters`).
+    Twin,
+    /// A record file of every setpoint with its times (a dry run: nothing moves).
+    Record(std::path::PathBuf),
+    /// Nothing: the setpoints only go to the topic.
+    Null,
+}
+
+impl std::str::FromStr for SinkSpec {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "twin" => Ok(SinkSpec::Twin),
+            "null" => Ok(SinkSpec::Null),
+            _ => match s.strip_prefix("record:") {
+                Some(file) if !file.is_empty() => Ok(SinkSpec::Record(file.into())),
+                _ => Err(format!(
+                    "unknown thruster sink `{s}` (expected `twin`, `record:FILE` or `null`)"
+                )),
+            },
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -192,6 +224,18 @@ mod tests {
         let x = nalgebra::DVector::from_column_slice(a.setpoints.as_slice());
         let null_part = &x - b.transpose() * (b * b.transpose()).try_inverse().unwrap() * (b * &x);
         assert!(null_part.norm() < 1e-12);
+    }
+
+    #[test]
+    fn sinks_parse() {
+        assert_eq!("twin".parse(), Ok(SinkSpec::Twin));
+        assert_eq!("null".parse(), Ok(SinkSpec::Null));
+        assert_eq!(
+            "record:/tmp/x.csv".parse(),
+            Ok(SinkSpec::Record("/tmp/x.csv".into()))
+        );
+        assert!("record:".parse::<SinkSpec>().is_err());
+        assert!("can0".parse::<SinkSpec>().is_err());
     }
 
     #[test]

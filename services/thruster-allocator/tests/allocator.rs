@@ -143,3 +143,63 @@ fn sigterm_stops_it_cleanly() {
     assert!(status.success(), "exit status {status:?}\n{}", alloc.log());
     assert!(alloc.log().contains("stopped"));
 }
+
+/// On the vehicle endpoint the setpoints go to the topic and to the thruster sink: here a record
+/// file, closed (complete) when the allocator stops.
+#[test]
+fn on_the_vehicle_endpoint_setpoints_are_written_to_the_sink() {
+    let ns = Namespace::new("alv");
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("setpoints.csv");
+    let probe = ns.probe(Endpoint::Vehicle);
+    let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
+    let outs = [
+        probe.outbox(&topics::SURGE_COMMAND),
+        probe.outbox(&topics::SWAY_COMMAND),
+        probe.outbox(&topics::YAW_COMMAND),
+    ];
+    let sink = format!("record:{}", file.display());
+    let mut alloc = Process::start(
+        &ns,
+        &testkit::binary("thruster-allocator"),
+        &["--endpoint", "vehicle", "--sink", &sink],
+    );
+    assert!(probe.wait_for_publisher(&setpoints, T), "{}", alloc.log());
+    assert!(probe.wait_for_subscribers(&outs[2], 1, T));
+    let mut sent = Vec::new();
+    for seq in [11, 12, 14] {
+        for (o, v) in outs.iter().zip([0.5, -0.2, 0.3]) {
+            o.send(command(seq, v)).unwrap();
+        }
+        let msg = probe
+            .wait_for(&setpoints, T, |m| m.stamp.seq == seq)
+            .unwrap();
+        sent.push(msg);
+    }
+    let status = alloc.terminate(T);
+    assert!(status.success(), "{}", alloc.log());
+    let (names, records) = adapters::record::read_record(&file).unwrap();
+    assert_eq!(names, ["port", "starboard", "lateral"]);
+    assert_eq!(records.len(), 3);
+    for (r, m) in records.iter().zip(&sent) {
+        assert_eq!(r.stamp, m.stamp);
+        assert_eq!(r.values, m.as_slice());
+    }
+}
+
+#[test]
+fn a_sink_on_the_sim_endpoint_is_refused() {
+    let ns = Namespace::new("als2");
+    let mut alloc = Process::start(
+        &ns,
+        &testkit::binary("thruster-allocator"),
+        &["--endpoint", "sim", "--sink", "twin"],
+    );
+    let status = alloc.wait(T).expect("it exits");
+    assert!(!status.success());
+    assert!(
+        alloc.log().contains("`vehicle` endpoint"),
+        "{}",
+        alloc.log()
+    );
+}

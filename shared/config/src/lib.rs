@@ -2,9 +2,10 @@
 //!
 //! Two files describe an experiment: `config/scenario.toml` (the vehicle model, camera, cable, episode,
 //! rewards, thrusters: [`Scenario`]) and `config/learning.toml` (policy and learner parameters:
-//! [`LearningParams`]). Every library takes its parameters from the types here, so a number is defined
-//! once. The defaults are the numbers of `DESIGN.md` and the paper; the files in `config/` repeat them
-//! so that an operator can read and change them.
+//! [`LearningParams`]); the vehicle twin's reality gap is `config/twin.toml` ([`TwinParams`]). Every
+//! library takes its parameters from the types here, so a number is defined once. The defaults are
+//! the numbers of `DESIGN.md` and the paper; the files in `config/` repeat them so that an operator
+//! can read and change them.
 //!
 //! Loading is strict: an unknown key, a wrong type or an out-of-range value is an error that names the
 //! file and the key (see [`ConfigError`]). Missing keys take their defaults.
@@ -12,6 +13,7 @@
 mod error;
 mod learning;
 mod scenario;
+mod twin;
 mod vision;
 
 pub use error::{ConfigError, Invalid};
@@ -21,6 +23,10 @@ pub use learning::{
 pub use scenario::{
     CableParams, CameraParams, DofModel, MAX_THRUSTERS, ModelParams, ObservationLimits, PoolParams,
     QuadraticCost, ResetParams, Rewards, Scenario, SurgeParams, ThrusterParams, Thrusters, Timing,
+};
+pub use twin::{
+    AsymmetryParams, CurrentParams, DampingParams, DeadBandParams, DofDamping, DropParams,
+    FrameParams, LagParams, MountParams, ThrusterGap, TrialParams, TwinParams,
 };
 pub use vision::{
     BlurParams, CablePolarity, ClutterParams, LightingParams, NoiseParams, PerceptionParams,

@@ -16,6 +16,9 @@
 //! episodes), its episode and step, the time, and the episode status. A consumer matches inputs by
 //! `seq` and never mixes steps.
 //!
+//! Below the endpoints lies the hardware level ([`topics::hardware`]): the vehicle twin's camera and
+//! thrusters, `cabletrack/twin/<topic>`, reached only through the vehicle endpoint's adapters.
+//!
 //! QoS is fixed here, for every process: iceoryx2 takes a service's QoS from whichever process creates
 //! it first, so the services are only ever opened through [`ports`].
 

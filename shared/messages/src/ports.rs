@@ -101,6 +101,31 @@ impl<P: Payload> Outbox<P> {
         })
     }
 
+    /// Opens a topic by its full service name (the hardware topics of [`crate::topics::hardware`],
+    /// which live outside the endpoints' namespaces).
+    pub fn open_service(
+        node: &Node<Ipc>,
+        service: &str,
+        topic: &Topic<P>,
+    ) -> Result<Self, PortError> {
+        let q = &topic.qos;
+        let factory = open_topic::<P>(node, service, q)?;
+        let publisher = factory
+            .publisher_builder()
+            .create()
+            .map_err(|e| fail(service, "cannot create a publisher")(&e))?;
+        let notifier = open_event(node, service, q)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| fail(service, "cannot create a notifier")(&e))?;
+        Ok(Outbox {
+            service: service.to_owned(),
+            factory,
+            publisher,
+            notifier,
+        })
+    }
+
     /// Sends `msg` and wakes the subscribers; returns how many subscribers received it.
     pub fn send(&self, msg: P) -> Result<usize, PortError> {
         let n = self
@@ -146,6 +171,30 @@ impl<P: Payload> Inbox<P> {
             .map_err(|e| fail(&service, "cannot create a listener")(&e))?;
         Ok(Inbox {
             service,
+            factory,
+            subscriber,
+            listener,
+        })
+    }
+
+    /// Opens a topic by its full service name (see [`Outbox::open_service`]).
+    pub fn open_service(
+        node: &Node<Ipc>,
+        service: &str,
+        topic: &Topic<P>,
+    ) -> Result<Self, PortError> {
+        let q = &topic.qos;
+        let factory = open_topic::<P>(node, service, q)?;
+        let subscriber = factory
+            .subscriber_builder()
+            .create()
+            .map_err(|e| fail(service, "cannot create a subscriber")(&e))?;
+        let listener = open_event(node, service, q)?
+            .listener_builder()
+            .create()
+            .map_err(|e| fail(service, "cannot create a listener")(&e))?;
+        Ok(Inbox {
+            service: service.to_owned(),
             factory,
             subscriber,
             listener,
@@ -204,6 +253,26 @@ fn open_frames(node: &Node<Ipc>, endpoint: Endpoint) -> Result<(String, FrameFac
     Ok((service, factory))
 }
 
+/// Opens a frame topic (an image slice with a [`CameraFrameHeader`]) by its full service name.
+fn open_frames_service(
+    node: &Node<Ipc>,
+    service: &str,
+    topic: &Topic<[u8]>,
+) -> Result<FrameFactory, PortError> {
+    let q = &topic.qos;
+    node.service_builder(&service_name(service)?)
+        .publish_subscribe::<[u8]>()
+        .user_header::<CameraFrameHeader>()
+        .history_size(q.history)
+        .subscriber_max_buffer_size(q.buffer)
+        .enable_safe_overflow(true)
+        .max_publishers(q.max_publishers)
+        .max_subscribers(q.max_subscribers)
+        .max_nodes(q.max_nodes)
+        .open_or_create()
+        .map_err(|e| fail(service, "cannot open the topic")(&e))
+}
+
 /// Publishes camera frames: the image is written straight into shared memory.
 pub struct FrameOutbox {
     service: String,
@@ -238,6 +307,38 @@ impl FrameOutbox {
             notifier,
             max_len,
         })
+    }
+
+    /// A publisher of frames of at most `max_len` bytes on a frame topic named in full (the hardware
+    /// topics of [`crate::topics::hardware`]).
+    pub fn open_service(
+        node: &Node<Ipc>,
+        service: &str,
+        topic: &Topic<[u8]>,
+        max_len: usize,
+    ) -> Result<Self, PortError> {
+        let factory = open_frames_service(node, service, topic)?;
+        let publisher = factory
+            .publisher_builder()
+            .initial_max_slice_len(max_len.max(1))
+            .create()
+            .map_err(|e| fail(service, "cannot create a publisher")(&e))?;
+        let notifier = open_event(node, service, &topic.qos)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| fail(service, "cannot create a notifier")(&e))?;
+        Ok(FrameOutbox {
+            service: service.to_owned(),
+            factory,
+            publisher,
+            notifier,
+            max_len,
+        })
+    }
+
+    /// The largest image this publisher sends (bytes).
+    pub fn max_len(&self) -> usize {
+        self.max_len
     }
 
     /// Loans `len` bytes of shared memory, lets `fill` write the image into them, and sends it with
@@ -295,6 +396,29 @@ impl FrameInbox {
             .map_err(|e| fail(&service, "cannot create a listener")(&e))?;
         Ok(FrameInbox {
             service,
+            factory,
+            subscriber,
+            listener,
+        })
+    }
+
+    /// A subscriber of a frame topic named in full (see [`FrameOutbox::open_service`]).
+    pub fn open_service(
+        node: &Node<Ipc>,
+        service: &str,
+        topic: &Topic<[u8]>,
+    ) -> Result<Self, PortError> {
+        let factory = open_frames_service(node, service, topic)?;
+        let subscriber = factory
+            .subscriber_builder()
+            .create()
+            .map_err(|e| fail(service, "cannot create a subscriber")(&e))?;
+        let listener = open_event(node, service, &topic.qos)?
+            .listener_builder()
+            .create()
+            .map_err(|e| fail(service, "cannot create a listener")(&e))?;
+        Ok(FrameInbox {
+            service: service.to_owned(),
             factory,
             subscriber,
             listener,

@@ -156,6 +156,51 @@ pub fn learning(dof: config::Dof) -> Topic<LearningStats> {
     }
 }
 
+/// The hardware level: topics between a device (or the vehicle twin standing in for the vehicle) and
+/// its adapters on the vehicle endpoint (`shared/adapters`). They live outside the `sim` and
+/// `vehicle` namespaces, in `cabletrack/<device>/<topic>`: the services of the vehicle endpoint never
+/// see them, only the camera's frame source and the allocator's thruster sink do.
+pub mod hardware {
+    use super::{Qos, Topic};
+    use crate::payload::ThrusterSetpoints;
+
+    /// The namespace of the vehicle twin's devices: `cabletrack/twin/...`.
+    pub const TWIN: &str = "twin";
+
+    /// The twin's camera: each frame as a `[u8]` image with a [`crate::CameraFrameHeader`] whose stamp
+    /// is the twin's (its frame counter, its clock, the trial as the episode, the step and status).
+    pub const TWIN_FRAME: Topic<[u8]> = Topic::new(
+        "frame",
+        Qos {
+            history: 1,
+            // A frame source reads each frame at once; a few frames of slack cost little memory.
+            buffer: 4,
+            // One camera (the twin); a subscriber per frame source, a recorder, a test's probe.
+            max_publishers: 1,
+            max_subscribers: 4,
+            max_nodes: 16,
+        },
+    );
+
+    /// The twin's thrusters: the setpoints written by the vehicle's thruster sink. As on the vehicle
+    /// endpoint, one process at a time drives the thrusters.
+    pub const TWIN_THRUSTERS: Topic<ThrusterSetpoints> = Topic::new(
+        "thrusters",
+        Qos {
+            history: 1,
+            buffer: 4,
+            max_publishers: 1,
+            max_subscribers: 4,
+            max_nodes: 16,
+        },
+    );
+
+    /// The iceoryx2 service name of a hardware topic of `device`: `cabletrack/<device>/<topic>`.
+    pub fn service_name<P: ?Sized>(device: &str, topic: &Topic<P>) -> String {
+        format!("cabletrack/{device}/{}", topic.name)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -172,6 +217,19 @@ mod tests {
         );
         assert_eq!("vehicle".parse::<Endpoint>(), Ok(Endpoint::Vehicle));
         assert!("boat".parse::<Endpoint>().is_err());
+    }
+
+    #[test]
+    fn hardware_topics_live_outside_the_endpoints() {
+        assert_eq!(
+            hardware::service_name(hardware::TWIN, &hardware::TWIN_FRAME),
+            "cabletrack/twin/frame"
+        );
+        assert_eq!(
+            hardware::service_name(hardware::TWIN, &hardware::TWIN_THRUSTERS),
+            "cabletrack/twin/thrusters"
+        );
+        assert_eq!(hardware::TWIN_THRUSTERS.qos.max_publishers, 1);
     }
 
     #[test]

@@ -1,0 +1,494 @@
+//! The twin's pacing, as plain state machines (no IPC, no clock of their own: every call is given
+//! `now`), so the `vehicle-twin` binary only binds them to its two ports.
+//!
+//! - [`RealTime`]: the camera's clock. Every period (`sample_time_s / speed` of wall time: 5 Hz in
+//!   real time, `K` times faster with `--speed K`) the twin advances one control period with the
+//!   newest setpoints received since the last tick (none: the thrusters hold) and takes a frame.
+//!   The first trial starts once a frame source is listening (the vehicle is in the water when its
+//!   camera is on).
+//! - [`Lockstep`]: the data-driven loop of the simulator (`--lockstep`). The twin publishes frame
+//!   `t`, waits for the setpoints answering it (matched by the frame's time, which the vehicle side
+//!   copies into its stamp), integrates and publishes `t + 1`: deterministic for a seed, as fast as
+//!   the mesh answers. It re-publishes an unanswered frame every `resend`; before the mesh ever
+//!   answered it waits indefinitely; once it runs, a frame unanswered for `deadline` is integrated
+//!   without an answer (the thrusters hold, then the watchdog stops them), so it never hangs.
+//!
+//! In both, a dropped frame is not published: nothing answers it and the twin moves on (in lockstep
+//! at once). Both stop after the requested number of trials.
+
+use crate::twin::{Shot, TrialEnd, Twin};
+use std::time::{Duration, Instant};
+
+/// What the shell does next.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Reaction {
+    /// Nothing to do.
+    Idle,
+    /// Publish this new frame. `passed` are the dropped frames integrated before it; `ended`, the
+    /// trials that closed on the way; `cause`, why the last one advanced.
+    Publish {
+        shot: Shot,
+        passed: u32,
+        ended: Vec<TrialEnd>,
+        cause: Cause,
+    },
+    /// Publish the current frame again.
+    Resend {
+        shot: Shot,
+        /// While the mesh has never answered: how long the twin has waited (noted every 5 s).
+        waiting_for_mesh: Option<Duration>,
+    },
+    /// The requested trials are done.
+    Finished { ended: Vec<TrialEnd> },
+}
+
+/// Why the twin advanced.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Cause {
+    /// The first frame.
+    Start,
+    /// The frame's setpoints arrived.
+    Answered,
+    /// Lockstep: no setpoints within the deadline.
+    Deadline,
+    /// Real time: the clock ticked (with or without new setpoints).
+    Tick { answered: bool },
+}
+
+/// Advances once with `answer`, then past dropped frames (integrated without an answer).
+fn advance_to_visible(
+    twin: &mut Twin,
+    answer: Option<&[f64]>,
+    ended: &mut Vec<TrialEnd>,
+) -> (Shot, u32) {
+    let (mut shot, end) = twin.advance(answer);
+    ended.extend(end);
+    let mut passed = 0;
+    while shot.dropped {
+        passed += 1;
+        let (next, end) = twin.advance(None);
+        ended.extend(end);
+        shot = next;
+    }
+    (shot, passed)
+}
+
+/// Counts trials against the requested number (0: forever).
+#[derive(Clone, Copy, Debug)]
+struct Budget {
+    trials: u32,
+    done: u32,
+}
+
+impl Budget {
+    /// Whether the answer to `shot` would end the last requested trial.
+    fn last(&self, shot: &Shot) -> bool {
+        shot.status.is_terminal() && self.trials > 0 && self.done + 1 >= self.trials
+    }
+}
+
+/// The lockstep protocol's time limits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Timing {
+    pub resend: Duration,
+    pub deadline: Duration,
+    pub waiting_note: Duration,
+}
+
+impl Timing {
+    pub fn new(resend: Duration, deadline: Duration) -> Self {
+        Timing {
+            resend,
+            deadline,
+            waiting_note: Duration::from_secs(5),
+        }
+    }
+
+    /// How long the shell may block without input: half the shorter limit.
+    pub fn tick(&self) -> Duration {
+        (self.resend.min(self.deadline) / 2).max(Duration::from_millis(1))
+    }
+}
+
+/// Where the lockstep stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    Connecting,
+    Running,
+    Finished,
+}
+
+/// The twin in lockstep with the mesh.
+pub struct Lockstep {
+    twin: Twin,
+    timing: Timing,
+    budget: Budget,
+    phase: Phase,
+    current: Shot,
+    started_at: Instant,
+    first_sent: Instant,
+    last_sent: Instant,
+    last_note: Instant,
+}
+
+impl Lockstep {
+    /// Starts the twin; the first frame to publish is in the returned reaction.
+    pub fn start(mut twin: Twin, timing: Timing, trials: u32, now: Instant) -> (Self, Reaction) {
+        let mut ended = Vec::new();
+        let mut shot = twin.start();
+        let mut passed = 0;
+        if shot.dropped {
+            (shot, passed) = advance_to_visible(&mut twin, None, &mut ended);
+        }
+        let lockstep = Lockstep {
+            twin,
+            timing,
+            budget: Budget { trials, done: 0 },
+            phase: Phase::Connecting,
+            current: shot,
+            started_at: now,
+            first_sent: now,
+            last_sent: now,
+            last_note: now,
+        };
+        let reaction = Reaction::Publish {
+            shot,
+            passed,
+            ended,
+            cause: Cause::Start,
+        };
+        (lockstep, reaction)
+    }
+
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// The frame waiting for its answer.
+    pub fn current(&self) -> &Shot {
+        &self.current
+    }
+
+    pub fn twin(&self) -> &Twin {
+        &self.twin
+    }
+
+    pub fn twin_mut(&mut self) -> &mut Twin {
+        &mut self.twin
+    }
+
+    /// Setpoints arrived for the frame of time `time_ns`: the current frame's answer advances the
+    /// twin; any other is ignored.
+    pub fn on_setpoints(&mut self, time_ns: u64, setpoints: &[f64], now: Instant) -> Reaction {
+        if self.phase == Phase::Finished || time_ns != self.current.time_ns() {
+            return Reaction::Idle;
+        }
+        self.advance(Some(setpoints), Cause::Answered, now)
+    }
+
+    /// Time passed: re-send, or advance past the deadline.
+    pub fn on_time(&mut self, now: Instant) -> Reaction {
+        match self.phase {
+            Phase::Finished => Reaction::Idle,
+            Phase::Running
+                if now.saturating_duration_since(self.first_sent) >= self.timing.deadline =>
+            {
+                self.advance(None, Cause::Deadline, now)
+            }
+            Phase::Connecting | Phase::Running => {
+                if now.saturating_duration_since(self.last_sent) < self.timing.resend {
+                    return Reaction::Idle;
+                }
+                self.last_sent = now;
+                let waiting_for_mesh = (self.phase == Phase::Connecting
+                    && now.saturating_duration_since(self.last_note) >= self.timing.waiting_note)
+                    .then(|| {
+                        self.last_note = now;
+                        now.saturating_duration_since(self.started_at)
+                    });
+                Reaction::Resend {
+                    shot: self.current,
+                    waiting_for_mesh,
+                }
+            }
+        }
+    }
+
+    fn advance(&mut self, answer: Option<&[f64]>, cause: Cause, now: Instant) -> Reaction {
+        let mut ended = Vec::new();
+        if self.budget.last(&self.current) {
+            // The answer to the last trial's last frame: done, no next trial.
+            let (_, end) = self.twin.advance(None);
+            ended.extend(end);
+            self.budget.done += 1;
+            self.phase = Phase::Finished;
+            return Reaction::Finished { ended };
+        }
+        let (shot, passed) = advance_to_visible(&mut self.twin, answer, &mut ended);
+        self.budget.done += ended.len() as u32;
+        self.current = shot;
+        self.phase = Phase::Running;
+        self.first_sent = now;
+        self.last_sent = now;
+        Reaction::Publish {
+            shot,
+            passed,
+            ended,
+            cause,
+        }
+    }
+}
+
+/// The twin paced by the clock.
+pub struct RealTime {
+    twin: Twin,
+    period: Duration,
+    budget: Budget,
+    next_tick: Option<Instant>,
+    newest: Option<Vec<f64>>,
+    finished: bool,
+}
+
+impl RealTime {
+    /// A twin ticking every `period` of wall time once started.
+    pub fn new(twin: Twin, period: Duration, trials: u32) -> Self {
+        RealTime {
+            twin,
+            period,
+            budget: Budget { trials, done: 0 },
+            next_tick: None,
+            newest: None,
+            finished: false,
+        }
+    }
+
+    pub fn twin(&self) -> &Twin {
+        &self.twin
+    }
+
+    pub fn twin_mut(&mut self) -> &mut Twin {
+        &mut self.twin
+    }
+
+    pub fn is_finished(&self) -> bool {
+        self.finished
+    }
+
+    /// Setpoints arrived: the newest are applied from the next tick on.
+    pub fn on_setpoints(&mut self, setpoints: &[f64]) {
+        if self.next_tick.is_some() {
+            self.newest = Some(setpoints.to_vec());
+        }
+    }
+
+    /// When the shell must call [`RealTime::on_time`] next (`None` before the start).
+    pub fn next_tick(&self) -> Option<Instant> {
+        self.next_tick
+    }
+
+    /// The clock: starts the first trial when `listening` (a frame source is connected); then, at
+    /// each due tick, advances one period.
+    pub fn on_time(&mut self, now: Instant, listening: bool) -> Reaction {
+        if self.finished {
+            return Reaction::Idle;
+        }
+        let Some(due) = self.next_tick else {
+            if !listening {
+                return Reaction::Idle;
+            }
+            self.next_tick = Some(now + self.period);
+            let shot = self.twin.start();
+            if shot.dropped {
+                return Reaction::Idle;
+            }
+            return Reaction::Publish {
+                shot,
+                passed: 0,
+                ended: Vec::new(),
+                cause: Cause::Start,
+            };
+        };
+        if now < due {
+            return Reaction::Idle;
+        }
+        // The next tick keeps the cadence; after a stall (a suspended process) it restarts from now.
+        let next = due + self.period;
+        self.next_tick = Some(if next > now { next } else { now + self.period });
+        let current = *self.twin.current().expect("started");
+        let answer = self.newest.take();
+        let answered = answer.is_some();
+        if self.budget.last(&current) {
+            let (_, end) = self.twin.advance(None);
+            self.finished = true;
+            return Reaction::Finished {
+                ended: end.into_iter().collect(),
+            };
+        }
+        let (shot, end) = self.twin.advance(answer.as_deref());
+        let ended: Vec<TrialEnd> = end.into_iter().collect();
+        self.budget.done += ended.len() as u32;
+        if shot.dropped {
+            // Not published; its tick passes. A trial's end is reported with the next frame.
+            return Reaction::Idle;
+        }
+        Reaction::Publish {
+            shot,
+            passed: 0,
+            ended,
+            cause: Cause::Tick { answered },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use config::{Scenario, TwinParams};
+    use messages::StepStatus;
+
+    const MS: Duration = Duration::from_millis(1);
+
+    fn twin(duration_s: f64, drops: f64, seed: u64) -> Twin {
+        let mut t = TwinParams::default();
+        t.trials.duration_s = duration_s;
+        t.frames.dropped.probability = drops;
+        Twin::new(&Scenario::default(), &t, seed, false).unwrap()
+    }
+
+    fn published(r: Reaction) -> Shot {
+        match r {
+            Reaction::Publish { shot, .. } => shot,
+            other => panic!("expected a frame, got {other:?}"),
+        }
+    }
+
+    /// Lockstep follows the core exactly: the same frames as a twin advanced by hand, dropped
+    /// frames passed at once.
+    #[test]
+    fn lockstep_follows_the_twin_and_passes_dropped_frames() {
+        let t0 = Instant::now();
+        let (mut ls, first) =
+            Lockstep::start(twin(2.0, 0.2, 7), Timing::new(100 * MS, 2000 * MS), 0, t0);
+        let mut reference = twin(2.0, 0.2, 7);
+        let mut want = reference.start();
+        while want.dropped {
+            want = reference.advance(None).0;
+        }
+        assert_eq!(published(first), want);
+        let mut passed_total = 0;
+        for k in 0..200 {
+            let sp = [0.5, 0.4, 0.1 * (k % 5) as f64];
+            let r = ls.on_setpoints(ls.current().time_ns(), &sp, t0);
+            let Reaction::Publish { shot, passed, .. } = r else {
+                panic!("{r:?}")
+            };
+            let mut w = reference.advance(Some(&sp)).0;
+            for _ in 0..passed {
+                assert!(w.dropped);
+                w = reference.advance(None).0;
+            }
+            assert!(!w.dropped);
+            assert_eq!(shot, w);
+            passed_total += passed;
+        }
+        assert!(passed_total > 10, "the twin dropped frames: {passed_total}");
+        // Setpoints for another frame are ignored.
+        assert_eq!(ls.on_setpoints(1, &[1.0; 3], t0), Reaction::Idle);
+    }
+
+    #[test]
+    fn lockstep_resends_then_holds_at_the_deadline_and_stops_after_its_trials() {
+        let t0 = Instant::now();
+        let timing = Timing::new(100 * MS, 1000 * MS);
+        let (mut ls, first) = Lockstep::start(twin(0.6, 0.0, 1), timing, 2, t0);
+        let first = published(first);
+        // Connecting: re-sends forever, never advances.
+        for k in 1..50u32 {
+            match ls.on_time(t0 + k * 100 * MS) {
+                Reaction::Resend { shot, .. } => assert_eq!(shot, first),
+                other => panic!("{other:?}"),
+            }
+        }
+        assert_eq!(ls.phase(), Phase::Connecting);
+        let t1 = t0 + 10_000 * MS;
+        let second = published(ls.on_setpoints(first.time_ns(), &[0.0; 3], t1));
+        assert_eq!(second.step, 1);
+        assert!(matches!(ls.on_time(t1 + 100 * MS), Reaction::Resend { .. }));
+        match ls.on_time(t1 + 1000 * MS) {
+            Reaction::Publish { shot, cause, .. } => {
+                assert_eq!(cause, Cause::Deadline);
+                assert_eq!(shot.step, 2);
+            }
+            other => panic!("{other:?}"),
+        }
+        // Answer everything: two trials of 3 steps, then finished.
+        let mut ends = Vec::new();
+        loop {
+            match ls.on_setpoints(ls.current().time_ns(), &[0.0; 3], t1) {
+                Reaction::Publish { ended, .. } => ends.extend(ended),
+                Reaction::Finished { ended } => {
+                    ends.extend(ended);
+                    break;
+                }
+                other => panic!("{other:?}"),
+            }
+        }
+        assert_eq!(
+            ends.iter().map(|e| (e.trial, e.status)).collect::<Vec<_>>(),
+            vec![(0, StepStatus::TimeLimit), (1, StepStatus::TimeLimit)]
+        );
+        assert_eq!(ls.phase(), Phase::Finished);
+        assert_eq!(ls.on_time(t1 + 60_000 * MS), Reaction::Idle);
+    }
+
+    /// Real time: nothing until a frame source listens, then one frame per period, each period
+    /// integrated with the newest setpoints; a dropped frame's tick publishes nothing.
+    #[test]
+    fn real_time_ticks_at_its_period_with_the_newest_setpoints() {
+        let period = 200 * MS;
+        let mut rt = RealTime::new(twin(90.0, 0.0, 3), period, 0);
+        let t0 = Instant::now();
+        assert_eq!(rt.on_time(t0, false), Reaction::Idle);
+        rt.on_setpoints(&[1.0; 3]); // before the start: ignored
+        let first = published(rt.on_time(t0, true));
+        assert_eq!(first.seq, 1);
+        assert_eq!(rt.next_tick(), Some(t0 + period));
+        assert_eq!(rt.on_time(t0 + 199 * MS, true), Reaction::Idle);
+        rt.on_setpoints(&[0.0, 0.0, 0.2]);
+        rt.on_setpoints(&[0.0, 0.0, 0.6]);
+        let mut reference = twin(90.0, 0.0, 3);
+        reference.start();
+        let second = published(rt.on_time(t0 + 201 * MS, true));
+        assert_eq!(second, reference.advance(Some(&[0.0, 0.0, 0.6])).0);
+        assert_eq!(rt.next_tick(), Some(t0 + 2 * period), "the cadence is kept");
+        match rt.on_time(t0 + 400 * MS, true) {
+            Reaction::Publish { shot, cause, .. } => {
+                assert_eq!(cause, Cause::Tick { answered: false });
+                assert_eq!(shot, reference.advance(None).0);
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn real_time_stops_after_its_trials() {
+        let mut rt = RealTime::new(twin(0.4, 0.0, 3), 10 * MS, 1);
+        let t0 = Instant::now();
+        published(rt.on_time(t0, true));
+        let mut k = 1;
+        loop {
+            match rt.on_time(t0 + k * 10 * MS, true) {
+                Reaction::Publish { .. } => {}
+                Reaction::Finished { ended } => {
+                    assert_eq!(ended.len(), 1);
+                    assert_eq!(ended[0].steps, 2);
+                    break;
+                }
+                other => panic!("{other:?}"),
+            }
+            k += 1;
+        }
+        assert!(rt.is_finished());
+        assert_eq!(rt.on_time(t0 + 10_000 * MS, true), Reaction::Idle);
+    }
+}

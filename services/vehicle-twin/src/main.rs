@@ -1,0 +1,247 @@
+//! `vehicle-twin`: the vehicle's hardware for the vehicle endpoint, on a machine without a vehicle.
+//! Publishes the twin camera's frames on `cabletrack/twin/frame`, takes the thruster setpoints from
+//! `cabletrack/twin/thrusters`, and runs trials as on the real vehicle. Real time by default
+//! (5 Hz), `--speed K` times faster, or `--lockstep` with the mesh (see `vehicle_twin::driver`).
+
+use adapters::replay::{DiveWriter, ImageFormat};
+use adapters::twin::{TwinCameraPort, TwinThrusterPort};
+use anyhow::Context;
+use clap::Parser;
+use config::TwinParams;
+use messages::StepStatus;
+use runtime::{CommonArgs, Flow, Timer};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+use vehicle_twin::Twin;
+use vehicle_twin::driver::{Cause, Lockstep, Reaction, RealTime, Timing};
+use vehicle_twin::twin::{Shot, TrialEnd};
+
+#[derive(Parser)]
+#[command(
+    version,
+    about = "The vehicle twin: the plant behind the vehicle endpoint's camera and thrusters, with the reality gap of config/twin.toml."
+)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// The twin's reality gap [default: CONFIG/twin.toml].
+    #[arg(long, value_name = "FILE")]
+    twin_config: Option<PathBuf>,
+    /// Run K times faster than real time (frames every 0.2/K s of wall time).
+    #[arg(long, default_value_t = 1.0, value_name = "K")]
+    speed: f64,
+    /// Lockstep with the mesh: publish a frame, wait for the setpoints answering it, integrate.
+    /// Deterministic for a seed, as fast as the mesh answers; --speed is not used.
+    #[arg(long)]
+    lockstep: bool,
+    /// Lockstep: re-publish an unanswered frame after this long.
+    #[arg(long, default_value_t = 100, value_name = "MS")]
+    resend_ms: u64,
+    /// Lockstep: once the mesh runs, a frame unanswered for this long is integrated without an
+    /// answer (the thrusters hold, then the watchdog stops them).
+    #[arg(long, default_value_t = 2000, value_name = "MS")]
+    deadline_ms: u64,
+    /// Stop after this many trials (0: run until SIGINT/SIGTERM).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    trials: u32,
+    /// Record the dive: every frame published, as a replayable dive (adapters::replay) in DIR.
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
+}
+
+/// Publishes the twin's frames (and records them).
+struct Camera {
+    port: TwinCameraPort,
+    image: Vec<u8>,
+    size: (u32, u32),
+    recorder: Option<DiveWriter>,
+}
+
+impl Camera {
+    fn publish(&mut self, twin: &mut Twin, shot: &Shot, again: bool) -> anyhow::Result<()> {
+        twin.render(&mut self.image)?;
+        let meta = shot.meta(self.size.0, self.size.1);
+        self.port
+            .send(&meta, |out| out.copy_from_slice(&self.image))?;
+        if !again && let Some(r) = self.recorder.as_mut() {
+            r.write(&meta, &self.image)?;
+        }
+        Ok(())
+    }
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    runtime::run("vehicle-twin", &args.common, |rt| {
+        if !(args.speed.is_finite() && args.speed > 0.0) {
+            anyhow::bail!("--speed {} must be a number > 0", args.speed);
+        }
+        let path = args
+            .twin_config
+            .clone()
+            .unwrap_or_else(|| rt.config_dir().join("twin.toml"));
+        let params: TwinParams = config::load(&path)?;
+        let scenario = rt.scenario();
+        let twin = Twin::new(scenario, &params, rt.seed(), true)?;
+        let size = (scenario.camera.width, scenario.camera.height);
+        let len = size.0 as usize * size.1 as usize;
+        let thrusters = TwinThrusterPort::open(rt.node())?;
+        let recorder = match &args.record {
+            Some(dir) => Some(
+                DiveWriter::create(dir, size.0, size.1, true, ImageFormat::Pgm)
+                    .with_context(|| format!("cannot record the dive in {}", dir.display()))?,
+            ),
+            None => None,
+        };
+        let mut camera = Camera {
+            port: TwinCameraPort::open(rt.node(), len)?,
+            image: vec![0; len],
+            size,
+            recorder,
+        };
+        let period = Duration::from_secs_f64(scenario.timing.sample_time_s / args.speed);
+        tracing::info!(
+            config = %path.display(),
+            mode = if args.lockstep { "lockstep" } else { "clock" },
+            speed = args.speed,
+            trials = args.trials,
+            trial_steps = twin.steps_per_trial(),
+            record = ?args.record,
+            "ready"
+        );
+        let mut log = TrialLog::new(twin.steps_per_trial());
+        if args.lockstep {
+            let timing = Timing::new(
+                Duration::from_millis(args.resend_ms),
+                Duration::from_millis(args.deadline_ms),
+            );
+            let (mut lockstep, first) = Lockstep::start(twin, timing, args.trials, Instant::now());
+            let mut act = |lockstep: &mut Lockstep, r: Reaction| -> anyhow::Result<Flow> {
+                match r {
+                    Reaction::Idle => {}
+                    Reaction::Resend {
+                        shot,
+                        waiting_for_mesh,
+                    } => {
+                        if let Some(waited) = waiting_for_mesh {
+                            tracing::info!(
+                                seq = shot.seq,
+                                waited_s = waited.as_secs(),
+                                frame_sources = camera.port.subscribers(),
+                                "waiting for the mesh: no setpoints yet"
+                            );
+                        }
+                        camera.publish(lockstep.twin_mut(), &shot, true)?;
+                    }
+                    Reaction::Publish {
+                        shot,
+                        passed,
+                        ended,
+                        cause,
+                    } => {
+                        log.closed(&ended, passed, cause, &shot);
+                        camera.publish(lockstep.twin_mut(), &shot, false)?;
+                    }
+                    Reaction::Finished { ended } => {
+                        log.closed(&ended, 0, Cause::Answered, lockstep.current());
+                        return Ok(Flow::Stop);
+                    }
+                }
+                Ok(Flow::Continue)
+            };
+            act(&mut lockstep, first)?;
+            rt.serve(
+                &[thrusters.listener()],
+                Timer::Timeout(timing.tick()),
+                |_| {
+                    while let Some(sp) = thrusters.receive()? {
+                        let r =
+                            lockstep.on_setpoints(sp.stamp.time_ns, sp.as_slice(), Instant::now());
+                        if act(&mut lockstep, r)? == Flow::Stop {
+                            return Ok(Flow::Stop);
+                        }
+                    }
+                    let r = lockstep.on_time(Instant::now());
+                    act(&mut lockstep, r)
+                },
+            )?;
+        } else {
+            let mut clock = RealTime::new(twin, period, args.trials);
+            // The interval timer wakes the loop; the clock decides when a period is due (a wake-up
+            // for setpoints and the timer's may coincide).
+            let tick = (period / 4).max(Duration::from_millis(1));
+            rt.serve(&[thrusters.listener()], Timer::Interval(tick), |_| {
+                while let Some(sp) = thrusters.receive()? {
+                    clock.on_setpoints(sp.as_slice());
+                }
+                let r = clock.on_time(Instant::now(), camera.port.subscribers() > 0);
+                match r {
+                    Reaction::Publish {
+                        shot, ended, cause, ..
+                    } => {
+                        log.closed(&ended, 0, cause, &shot);
+                        camera.publish(clock.twin_mut(), &shot, false)?;
+                    }
+                    Reaction::Finished { ended } => {
+                        let shot = *clock.twin().current().expect("started");
+                        log.closed(&ended, 0, Cause::Tick { answered: false }, &shot);
+                        return Ok(Flow::Stop);
+                    }
+                    Reaction::Idle | Reaction::Resend { .. } => {}
+                }
+                Ok(Flow::Continue)
+            })?;
+        }
+        if let Some(r) = camera.recorder.take() {
+            let dir = r.dir().to_owned();
+            let frames = r.finish()?;
+            tracing::info!(dir = %dir.display(), frames, "dive recorded");
+        }
+        Ok(())
+    })
+}
+
+/// Logs trial ends and unanswered frames.
+struct TrialLog {
+    steps_per_trial: u32,
+    started: Instant,
+    frames: u64,
+}
+
+impl TrialLog {
+    fn new(steps_per_trial: u32) -> Self {
+        TrialLog {
+            steps_per_trial,
+            started: Instant::now(),
+            frames: 0,
+        }
+    }
+
+    fn closed(&mut self, ended: &[TrialEnd], passed: u32, cause: Cause, shot: &Shot) {
+        self.frames += 1 + passed as u64;
+        if cause == Cause::Deadline {
+            tracing::warn!(
+                seq = shot.seq,
+                "no setpoints within the deadline: the thrusters hold"
+            );
+        }
+        for end in ended {
+            let how = match end.status {
+                StepStatus::Lost => "cable lost",
+                StepStatus::TimeLimit => "time limit",
+                StepStatus::Running => "running",
+            };
+            tracing::info!(
+                trial = end.trial,
+                steps = end.steps,
+                of = self.steps_per_trial,
+                end = how,
+                dropped_frames = end.dropped,
+                frames_per_s = (self.frames as f64 / self.started.elapsed().as_secs_f64().max(1e-9))
+                    .round() as u64,
+                "trial ended"
+            );
+        }
+    }
+}

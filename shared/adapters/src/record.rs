@@ -1,0 +1,317 @@
+//! Thruster sinks that drive no thruster: [`RecordSink`] writes every setpoint with its times to a
+//! file (a dry run on the bench, a log of a dive), [`NullSink`] discards them.
+//!
+//! A record file is text, one line per write:
+//!
+//! ```text
+//! # cabletrack thruster record v1
+//! seq,time_ns,trial,step,status,written_unix_ns,port,starboard,lateral
+//! 41,8000000000,0,40,running,1763781234567890123,0.61,0.2,-0.05
+//! ```
+//!
+//! `seq`, `time_ns` (the vehicle clock), `trial`, `step` and `status` (`running`, `lost`,
+//! `time_limit`) are the stamp of the step the setpoints answer; `written_unix_ns` is when the sink
+//! wrote them (the wall clock); then one column per thruster, named after the layout, with the
+//! setpoints as written (made safe). Floats are written in Rust's shortest round-trip form, so
+//! [`read_record`] gives back the very values.
+
+use crate::{AdapterError, Applied, Stamp, StepStatus, ThrusterSink, apply, check_thrusters};
+use std::io::{BufRead, BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+/// The first line of a record file.
+pub const RECORD_MAGIC: &str = "# cabletrack thruster record v1";
+
+/// The columns before the setpoints.
+const STAMP_COLUMNS: [&str; 6] = [
+    "seq",
+    "time_ns",
+    "trial",
+    "step",
+    "status",
+    "written_unix_ns",
+];
+
+/// A status as written in files.
+pub fn status_name(status: StepStatus) -> &'static str {
+    match status {
+        StepStatus::Running => "running",
+        StepStatus::Lost => "lost",
+        StepStatus::TimeLimit => "time_limit",
+    }
+}
+
+/// A status read from a file.
+pub fn parse_status(word: &str) -> Option<StepStatus> {
+    match word {
+        "running" => Some(StepStatus::Running),
+        "lost" => Some(StepStatus::Lost),
+        "time_limit" => Some(StepStatus::TimeLimit),
+        _ => None,
+    }
+}
+
+/// Writes setpoints with their times to a file.
+pub struct RecordSink {
+    path: PathBuf,
+    file: Option<BufWriter<std::fs::File>>,
+    thrusters: usize,
+}
+
+impl RecordSink {
+    /// Creates (or truncates) `path` for a layout with these thruster names.
+    pub fn create(path: &Path, names: &[String]) -> Result<Self, AdapterError> {
+        check_thrusters(&format!("record {}", path.display()), names.len())?;
+        let write_err = |source| AdapterError::Write {
+            path: path.to_owned(),
+            source,
+        };
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(write_err)?;
+        }
+        let mut file = BufWriter::new(std::fs::File::create(path).map_err(write_err)?);
+        let columns: Vec<&str> = STAMP_COLUMNS
+            .iter()
+            .copied()
+            .chain(names.iter().map(String::as_str))
+            .collect();
+        writeln!(file, "{RECORD_MAGIC}\n{}", columns.join(",")).map_err(write_err)?;
+        Ok(RecordSink {
+            path: path.to_owned(),
+            file: Some(file),
+            thrusters: names.len(),
+        })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn closed(&self) -> AdapterError {
+        AdapterError::Closed {
+            adapter: self.describe(),
+        }
+    }
+
+    fn write_err(&self, source: std::io::Error) -> AdapterError {
+        AdapterError::Write {
+            path: self.path.clone(),
+            source,
+        }
+    }
+}
+
+impl ThrusterSink for RecordSink {
+    fn describe(&self) -> String {
+        format!("record {}", self.path.display())
+    }
+
+    fn thrusters(&self) -> usize {
+        self.thrusters
+    }
+
+    fn write(&mut self, stamp: &Stamp, setpoints: &[f64]) -> Result<Applied, AdapterError> {
+        if self.file.is_none() {
+            return Err(self.closed());
+        }
+        let applied = apply(&self.describe(), self.thrusters, setpoints)?;
+        let written = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64);
+        let mut line = format!(
+            "{},{},{},{},{},{written}",
+            stamp.seq,
+            stamp.time_ns,
+            stamp.episode,
+            stamp.step,
+            status_name(stamp.status())
+        );
+        for v in applied.as_slice() {
+            line.push_str(&format!(",{v}"));
+        }
+        line.push('\n');
+        let result = self
+            .file
+            .as_mut()
+            .expect("checked above")
+            .write_all(line.as_bytes());
+        result.map_err(|e| self.write_err(e))?;
+        Ok(applied)
+    }
+
+    fn flush(&mut self) -> Result<(), AdapterError> {
+        let Some(file) = self.file.as_mut() else {
+            return Err(self.closed());
+        };
+        let result = file.flush();
+        result.map_err(|e| self.write_err(e))
+    }
+
+    fn close(&mut self) -> Result<(), AdapterError> {
+        let Some(mut file) = self.file.take() else {
+            return Ok(());
+        };
+        file.flush().map_err(|e| self.write_err(e))?;
+        let result = file.get_ref().sync_all();
+        result.map_err(|e| self.write_err(e))
+    }
+}
+
+impl Drop for RecordSink {
+    fn drop(&mut self) {
+        if let Err(e) = self.close() {
+            tracing::error!("{e}");
+        }
+    }
+}
+
+/// One line of a record file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Record {
+    pub stamp: Stamp,
+    pub written_unix_ns: u64,
+    pub values: Vec<f64>,
+}
+
+/// Reads a record file: the thruster names and the records, in the order written.
+pub fn read_record(path: &Path) -> Result<(Vec<String>, Vec<Record>), AdapterError> {
+    let file = std::fs::File::open(path).map_err(|source| AdapterError::Read {
+        path: path.to_owned(),
+        source,
+    })?;
+    let bad = |line: usize, reason: String| AdapterError::Format {
+        file: path.to_owned(),
+        line,
+        reason,
+    };
+    let mut names = Vec::new();
+    let mut records = Vec::new();
+    for (k, line) in std::io::BufReader::new(file).lines().enumerate() {
+        let n = k + 1;
+        let line = line.map_err(|source| AdapterError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        match n {
+            1 if line != RECORD_MAGIC => {
+                return Err(bad(n, format!("expected `{RECORD_MAGIC}`")));
+            }
+            1 => continue,
+            2 => {
+                let cols: Vec<&str> = line.split(',').collect();
+                if cols.len() <= STAMP_COLUMNS.len() || cols[..STAMP_COLUMNS.len()] != STAMP_COLUMNS
+                {
+                    return Err(bad(
+                        n,
+                        format!(
+                            "expected the columns {} and one per thruster",
+                            STAMP_COLUMNS.join(",")
+                        ),
+                    ));
+                }
+                names = cols[STAMP_COLUMNS.len()..]
+                    .iter()
+                    .map(|s| s.to_string())
+                    .collect();
+                continue;
+            }
+            _ => {}
+        }
+        let cols: Vec<&str> = line.split(',').collect();
+        if cols.len() != STAMP_COLUMNS.len() + names.len() {
+            return Err(bad(
+                n,
+                format!(
+                    "{} fields, expected {}",
+                    cols.len(),
+                    STAMP_COLUMNS.len() + names.len()
+                ),
+            ));
+        }
+        let int = |i: usize| {
+            cols[i]
+                .parse::<u64>()
+                .map_err(|e| bad(n, format!("{} `{}`: {e}", STAMP_COLUMNS[i], cols[i])))
+        };
+        let small = |i: usize| {
+            u32::try_from(int(i)?).map_err(|e| bad(n, format!("{}: {e}", STAMP_COLUMNS[i])))
+        };
+        let status =
+            parse_status(cols[4]).ok_or_else(|| bad(n, format!("unknown status `{}`", cols[4])))?;
+        let mut values = Vec::with_capacity(names.len());
+        for (j, c) in cols[STAMP_COLUMNS.len()..].iter().enumerate() {
+            values.push(
+                c.parse::<f64>()
+                    .map_err(|e| bad(n, format!("setpoint of {} `{c}`: {e}", names[j])))?,
+            );
+        }
+        records.push(Record {
+            stamp: Stamp::new(int(0)?, int(1)?, small(2)?, small(3)?, status),
+            written_unix_ns: int(5)?,
+            values,
+        });
+    }
+    if names.is_empty() {
+        return Err(bad(1, "empty record file".into()));
+    }
+    Ok((names, records))
+}
+
+/// Discards setpoints (after checking and making them safe, as any sink does).
+pub struct NullSink {
+    thrusters: usize,
+    written: u64,
+    closed: bool,
+}
+
+impl NullSink {
+    pub fn new(thrusters: usize) -> Result<Self, AdapterError> {
+        check_thrusters("null thrusters", thrusters)?;
+        Ok(NullSink {
+            thrusters,
+            written: 0,
+            closed: false,
+        })
+    }
+
+    /// Writes accepted so far.
+    pub fn written(&self) -> u64 {
+        self.written
+    }
+}
+
+impl ThrusterSink for NullSink {
+    fn describe(&self) -> String {
+        "null thrusters".into()
+    }
+
+    fn thrusters(&self) -> usize {
+        self.thrusters
+    }
+
+    fn write(&mut self, _stamp: &Stamp, setpoints: &[f64]) -> Result<Applied, AdapterError> {
+        if self.closed {
+            return Err(AdapterError::Closed {
+                adapter: self.describe(),
+            });
+        }
+        let applied = apply("null thrusters", self.thrusters, setpoints)?;
+        self.written += 1;
+        Ok(applied)
+    }
+
+    fn flush(&mut self) -> Result<(), AdapterError> {
+        if self.closed {
+            return Err(AdapterError::Closed {
+                adapter: self.describe(),
+            });
+        }
+        Ok(())
+    }
+
+    fn close(&mut self) -> Result<(), AdapterError> {
+        self.closed = true;
+        Ok(())
+    }
+}

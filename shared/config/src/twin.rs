@@ -1,0 +1,470 @@
+//! `twin.toml`: the vehicle twin, the plant behind the vehicle endpoint's hardware adapters.
+//!
+//! The identified model of `scenario.toml` leaves things out on purpose (the paper dropped quadratic
+//! damping and assumed low speed). The twin puts them back: this file is the *reality gap*
+//! (DESIGN.md). Every effect has an `enabled` switch, so each can be studied alone; the image effects
+//! are the `enabled` switches of the twin's own `[render]` table (harsher than the simulator's).
+//! [`TwinParams::ideal`] switches everything off: the twin then behaves as the simulator does.
+
+use crate::{Invalid, RenderParams, ResetParams, Validate, in_range, join, positive};
+use serde::{Deserialize, Serialize};
+
+/// Everything that makes the twin differ from the identified model.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TwinParams {
+    pub trials: TrialParams,
+    pub damping: DampingParams,
+    pub thrusters: ThrusterGap,
+    pub current: CurrentParams,
+    pub camera: MountParams,
+    pub frames: FrameParams,
+    /// The twin camera's image: its own effects, harsher than the simulator's `[render]`.
+    pub render: RenderParams,
+}
+
+/// Trials, as on the real vehicle (paper section IV-B): a trial lasts `duration_s` of twin time or
+/// until the cable leaves the image; then the vehicle is repositioned and the next trial begins.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrialParams {
+    pub duration_s: f64,
+    /// Where a trial starts: a random pose around the cable with the cable in view.
+    pub reposition: ResetParams,
+    /// 0: every trial starts from a new random pose. N > 0: the trials cycle through N random
+    /// poses drawn when the twin starts (a pool protocol: the operator puts the vehicle back at the
+    /// same few starts, so trials far apart compare, e.g. the first N with the last N).
+    pub cycle: u32,
+}
+
+/// Quadratic damping, put back: each DOF's `dv/dt` gets `- beta v|v|`. The identified model fitted a
+/// linear drag `gamma v` to a vehicle whose drag is partly quadratic; it matched at the speeds of the
+/// identification runs. The twin keeps the identified drag at that speed and splits it:
+/// `gamma_twin = gamma - beta * identified_at`, so the twin is as fast as the model at full thrust
+/// but less damped at low speed (where the cable is tracked) and more above.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DampingParams {
+    pub enabled: bool,
+    pub surge: DofDamping,
+    pub sway: DofDamping,
+    pub yaw: DofDamping,
+}
+
+/// One DOF's quadratic damping.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DofDamping {
+    /// The quadratic coefficient (1/m for surge and sway, 1/rad for yaw).
+    pub beta: f64,
+    /// The speed (m/s, rad/s for yaw) at which the identified linear drag matched the vehicle's.
+    pub identified_at: f64,
+}
+
+impl DofDamping {
+    /// The twin's linear and quadratic damping for a DOF identified as `gamma` (linear only).
+    pub fn split(&self, gamma: f64) -> (f64, f64) {
+        ((gamma - self.beta * self.identified_at).max(0.0), self.beta)
+    }
+}
+
+/// The thrusters as they are: slow, with a dead band, weaker in reverse, stopped by a watchdog.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ThrusterGap {
+    pub lag: LagParams,
+    pub dead_band: DeadBandParams,
+    pub asymmetry: AsymmetryParams,
+    /// Thrusters stop when no setpoints have arrived for this long (twin time, s); until then they
+    /// hold the last setpoints (a dropped frame gets no answer).
+    pub watchdog_s: f64,
+}
+
+/// First-order lag: the thrust follows its setpoint with this time constant.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LagParams {
+    pub enabled: bool,
+    pub time_constant_s: f64,
+}
+
+/// Setpoints smaller than this in magnitude do not turn the propeller (no thrust).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DeadBandParams {
+    pub enabled: bool,
+    pub setpoint: f64,
+}
+
+/// Forward/reverse asymmetry: a propeller pushes this fraction as hard in reverse as forward.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AsymmetryParams {
+    pub enabled: bool,
+    pub reverse_gain: f64,
+}
+
+/// A uniform water current (pool frame).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CurrentParams {
+    pub enabled: bool,
+    pub speed_m_s: f64,
+    /// The direction the water flows to, from the pool's x axis towards its y axis.
+    pub direction_deg: f64,
+}
+
+impl CurrentParams {
+    /// The current's velocity (pool frame, m/s); zero when disabled.
+    pub fn velocity(&self) -> [f64; 2] {
+        if !self.enabled {
+            return [0.0, 0.0];
+        }
+        let (s, c) = self.direction_deg.to_radians().sin_cos();
+        [self.speed_m_s * c, self.speed_m_s * s]
+    }
+}
+
+/// The camera mounted off the centre of rotation (body frame: forward, starboard).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MountParams {
+    pub enabled: bool,
+    pub mount_x_m: f64,
+    pub mount_y_m: f64,
+}
+
+impl MountParams {
+    /// The mounting offset (forward, starboard); zero when disabled.
+    pub fn offset(&self) -> [f64; 2] {
+        if self.enabled {
+            [self.mount_x_m, self.mount_y_m]
+        } else {
+            [0.0, 0.0]
+        }
+    }
+}
+
+/// What happens to frames between the camera and the vehicle's computer.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FrameParams {
+    pub dropped: DropParams,
+}
+
+/// Frames lost on the way: each frame is dropped with this probability (a trial's last frame, which
+/// tells the vehicle side that the trial ended, is never dropped).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DropParams {
+    pub enabled: bool,
+    pub probability: f64,
+}
+
+impl DropParams {
+    /// The probability of dropping a frame; 0 when disabled.
+    pub fn rate(&self) -> f64 {
+        if self.enabled { self.probability } else { 0.0 }
+    }
+}
+
+impl Default for TwinParams {
+    fn default() -> Self {
+        TwinParams {
+            trials: TrialParams::default(),
+            damping: DampingParams::default(),
+            thrusters: ThrusterGap::default(),
+            current: CurrentParams::default(),
+            camera: MountParams::default(),
+            frames: FrameParams::default(),
+            render: TwinParams::default_render(),
+        }
+    }
+}
+
+impl TwinParams {
+    /// The twin camera's image: the simulator's effects, harsher (more noise, longer exposure, a
+    /// stronger lamp fall-off, more clutter).
+    pub fn default_render() -> RenderParams {
+        let mut r = RenderParams::default();
+        r.clutter.coverage = 0.22;
+        r.lighting.vignetting = 0.55;
+        r.lighting.gradient = 0.4;
+        r.noise.std_dn = 12.0;
+        r.blur.exposure_s = 0.08;
+        r
+    }
+
+    /// Every effect of the reality gap off (the trials and the watchdog stay): the twin's plant is
+    /// the identified model, its camera the simulator's (clean images).
+    pub fn ideal() -> Self {
+        let mut t = TwinParams::default();
+        t.damping.enabled = false;
+        t.thrusters.lag.enabled = false;
+        t.thrusters.dead_band.enabled = false;
+        t.thrusters.asymmetry.enabled = false;
+        t.current.enabled = false;
+        t.camera.enabled = false;
+        t.frames.dropped.enabled = false;
+        t.render = RenderParams::clean();
+        t
+    }
+}
+
+impl Default for TrialParams {
+    fn default() -> Self {
+        TrialParams {
+            duration_s: 90.0,
+            reposition: ResetParams::default(),
+            cycle: 5,
+        }
+    }
+}
+
+impl Default for DampingParams {
+    fn default() -> Self {
+        DampingParams {
+            enabled: true,
+            surge: DofDamping {
+                beta: 0.8,
+                identified_at: 0.3,
+            },
+            sway: DofDamping {
+                beta: 0.8,
+                identified_at: 0.3,
+            },
+            yaw: DofDamping {
+                beta: 38.0,
+                identified_at: 0.08,
+            },
+        }
+    }
+}
+
+impl Default for ThrusterGap {
+    fn default() -> Self {
+        ThrusterGap {
+            lag: LagParams {
+                enabled: true,
+                time_constant_s: 0.5,
+            },
+            dead_band: DeadBandParams {
+                enabled: true,
+                setpoint: 0.05,
+            },
+            asymmetry: AsymmetryParams {
+                enabled: true,
+                reverse_gain: 0.75,
+            },
+            watchdog_s: 1.0,
+        }
+    }
+}
+
+impl Default for LagParams {
+    fn default() -> Self {
+        ThrusterGap::default().lag
+    }
+}
+
+impl Default for DeadBandParams {
+    fn default() -> Self {
+        ThrusterGap::default().dead_band
+    }
+}
+
+impl Default for AsymmetryParams {
+    fn default() -> Self {
+        ThrusterGap::default().asymmetry
+    }
+}
+
+impl Default for CurrentParams {
+    fn default() -> Self {
+        CurrentParams {
+            enabled: true,
+            speed_m_s: 0.06,
+            direction_deg: 180.0,
+        }
+    }
+}
+
+impl Default for MountParams {
+    fn default() -> Self {
+        MountParams {
+            enabled: true,
+            mount_x_m: 0.15,
+            mount_y_m: 0.03,
+        }
+    }
+}
+
+impl Default for DropParams {
+    fn default() -> Self {
+        DropParams {
+            enabled: true,
+            probability: 0.03,
+        }
+    }
+}
+
+impl Validate for TwinParams {
+    fn validate(&self, key: &str) -> Result<(), Invalid> {
+        let k = join(key, "trials");
+        in_range(&k, "duration_s", self.trials.duration_s, 0.2, 1.0e6)?;
+        self.trials.reposition.validate(&join(&k, "reposition"))?;
+        in_range(&k, "cycle", self.trials.cycle as f64, 0.0, 1.0e6)?;
+
+        let k = join(key, "damping");
+        for (field, d) in [
+            ("surge", self.damping.surge),
+            ("sway", self.damping.sway),
+            ("yaw", self.damping.yaw),
+        ] {
+            let k = join(&k, field);
+            in_range(&k, "beta", d.beta, 0.0, 1.0e3)?;
+            in_range(&k, "identified_at", d.identified_at, 0.0, 10.0)?;
+        }
+
+        let t = &self.thrusters;
+        let k = join(key, "thrusters");
+        positive(&join(&k, "lag"), "time_constant_s", t.lag.time_constant_s)?;
+        in_range(
+            &join(&k, "lag"),
+            "time_constant_s",
+            t.lag.time_constant_s,
+            0.0,
+            60.0,
+        )?;
+        in_range(
+            &join(&k, "dead_band"),
+            "setpoint",
+            t.dead_band.setpoint,
+            0.0,
+            0.9,
+        )?;
+        in_range(
+            &join(&k, "asymmetry"),
+            "reverse_gain",
+            t.asymmetry.reverse_gain,
+            0.0,
+            2.0,
+        )?;
+        positive(&k, "watchdog_s", t.watchdog_s)?;
+
+        let k = join(key, "current");
+        in_range(&k, "speed_m_s", self.current.speed_m_s, 0.0, 5.0)?;
+        in_range(
+            &k,
+            "direction_deg",
+            self.current.direction_deg,
+            -360.0,
+            360.0,
+        )?;
+
+        let k = join(key, "camera");
+        in_range(&k, "mount_x_m", self.camera.mount_x_m, -10.0, 10.0)?;
+        in_range(&k, "mount_y_m", self.camera.mount_y_m, -10.0, 10.0)?;
+
+        // A probability of 1 would drop every frame but a trial's last: the vehicle would be blind.
+        in_range(
+            &join(key, "frames.dropped"),
+            "probability",
+            self.frames.dropped.probability,
+            0.0,
+            0.9,
+        )?;
+
+        self.render.validate(&join(key, "render"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ConfigError;
+    use std::path::Path;
+
+    #[test]
+    fn the_shipped_file_equals_the_defaults() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/twin.toml");
+        let t: TwinParams = crate::load(&path).unwrap();
+        assert_eq!(t, TwinParams::default());
+    }
+
+    #[test]
+    fn defaults_are_valid_and_harsher_than_the_simulators_images() {
+        TwinParams::default().validate("").unwrap();
+        TwinParams::ideal().validate("").unwrap();
+        let (twin, sim) = (TwinParams::default().render, RenderParams::default());
+        assert!(twin.noise.std_dn > sim.noise.std_dn);
+        assert!(twin.blur.exposure_s > sim.blur.exposure_s);
+        assert!(twin.lighting.vignetting > sim.lighting.vignetting);
+    }
+
+    #[test]
+    fn every_effect_has_a_switch() {
+        let i = TwinParams::ideal();
+        assert_eq!(i.current.velocity(), [0.0, 0.0]);
+        assert_eq!(i.camera.offset(), [0.0, 0.0]);
+        assert_eq!(i.frames.dropped.rate(), 0.0);
+        assert!(!i.damping.enabled && !i.thrusters.lag.enabled);
+        assert!(!i.thrusters.dead_band.enabled && !i.thrusters.asymmetry.enabled);
+        assert!(!i.render.noise.enabled && !i.render.blur.enabled && !i.render.lighting.enabled);
+        let d = TwinParams::default();
+        let v = d.current.velocity();
+        assert!((v[0] + 0.06).abs() < 1e-12 && v[1].abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_values_and_unknown_keys_are_refused_by_name() {
+        let err = crate::parse::<TwinParams>(
+            "[thrusters.dead_band]\nsetpoint = 1.5\n",
+            Path::new("twin.toml"),
+        )
+        .unwrap_err();
+        let ConfigError::Invalid { invalid, .. } = &err else {
+            panic!("{err}")
+        };
+        assert_eq!(invalid.key, "thrusters.dead_band.setpoint");
+        assert!(err.to_string().contains("twin.toml"), "{err}");
+
+        let err =
+            crate::parse::<TwinParams>("[current]\nspeeed_m_s = 0.1\n", Path::new("twin.toml"))
+                .unwrap_err();
+        assert!(err.to_string().contains("speeed_m_s"), "{err}");
+
+        let err = crate::parse::<TwinParams>(
+            "[frames.dropped]\nprobability = 1.0\n",
+            Path::new("twin.toml"),
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string().contains("frames.dropped.probability"),
+            "{err}"
+        );
+
+        let err = crate::parse::<TwinParams>(
+            "[thrusters.lag]\ntime_constant_s = 0.0\n",
+            Path::new("twin.toml"),
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string().contains("thrusters.lag.time_constant_s"),
+            "{err}"
+        );
+
+        let err = crate::parse::<TwinParams>("[render.noise]\nstd_dn = -2\n", Path::new("t.toml"))
+            .unwrap_err();
+        assert!(err.to_string().contains("render.noise.std_dn"), "{err}");
+    }
+
+    #[test]
+    fn missing_keys_take_their_defaults() {
+        let t: TwinParams =
+            crate::parse("[current]\nenabled = false\n", Path::new("t.toml")).unwrap();
+        assert!(!t.current.enabled);
+        assert_eq!(t.current.speed_m_s, CurrentParams::default().speed_m_s);
+        assert_eq!(t.thrusters, ThrusterGap::default());
+    }
+}
