@@ -1,0 +1,199 @@
+//! `mesh-bench`: the service mesh's benchmark (see the library's docs). `scripts/bench-mesh` builds
+//! and runs it.
+
+use anyhow::{Context, Result};
+use clap::{Args, Parser, Subcommand};
+use mesh_bench::report::{Machine, Results, load, thousands};
+use mesh_bench::ring::{self, Role};
+use mesh_bench::runs::{self, MeshSetup};
+use runtime::CommonArgs;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    version,
+    about = "Benchmarks the service mesh: steps/s with images, latency per hop and per step, CPU and memory per process, against the limit (the same cores in one process + a bare iceoryx2 ring).",
+    args_conflicts_with_subcommands = true
+)]
+struct Cli {
+    #[command(flatten)]
+    bench: Bench,
+    #[command(subcommand)]
+    command: Option<Hidden>,
+}
+
+#[derive(Args)]
+struct Bench {
+    /// Episodes per run (the first one is the warm-up).
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(2..))]
+    episodes: u32,
+    /// Repeats of the whole set of runs; medians are reported (a run of the mesh can differ from
+    /// the next by 10 to 20% on a 2-core VM, as the scheduler places its processes).
+    #[arg(long, default_value_t = 7, value_parser = clap::value_parser!(u64).range(1..))]
+    repeats: u64,
+    /// Seed of the first repeat (the next ones take the next seeds).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Directory holding scenario.toml and learning.toml.
+    #[arg(long, default_value = "config")]
+    config: PathBuf,
+    /// The mesh file the supervisor runs.
+    #[arg(long, default_value = "config/sim-mesh.toml")]
+    mesh: PathBuf,
+    /// Run the probe's thread at this SCHED_FIFO priority (0: normal scheduling).
+    #[arg(long, default_value_t = 0)]
+    probe_fifo: i32,
+    /// Write every run's figures here as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Write the Markdown report here too.
+    #[arg(long)]
+    markdown: Option<PathBuf>,
+}
+
+#[derive(Subcommand)]
+enum Hidden {
+    /// One node of the bare ring (started by the bench itself).
+    #[command(hide = true)]
+    RingNode {
+        #[arg(long, value_enum)]
+        role: Role,
+        /// Steps not measured at the start.
+        #[arg(long, default_value_t = 201)]
+        warmup: u64,
+        /// Steps measured (the simulator node stops after warmup + steps).
+        #[arg(long)]
+        steps: u64,
+        #[command(flatten)]
+        common: CommonArgs,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    if let Some(Hidden::RingNode {
+        role,
+        warmup,
+        steps,
+        common,
+    }) = cli.command
+    {
+        return runtime::run(role.name(), &common, |rt| {
+            let report = ring::run(rt, role, warmup, steps)?;
+            println!("{}", serde_json::to_string(&report)?);
+            Ok(())
+        });
+    }
+    runtime::init_tracing();
+    match bench(&cli.bench) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("mesh-bench: error: {err:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn bench(args: &Bench) -> Result<()> {
+    let config_dir = args
+        .config
+        .canonicalize()
+        .with_context(|| format!("the config directory {}", args.config.display()))?;
+    let mesh_file = args
+        .mesh
+        .canonicalize()
+        .with_context(|| format!("the mesh file {}", args.mesh.display()))?;
+    let scenario: config::Scenario = config::load(&config_dir.join("scenario.toml"))?;
+    let exe = std::env::current_exe()?;
+    let bin_dir = exe.parent().context("the bench's directory")?.to_owned();
+    // A step is one pass of the loop: an episode of at most max_steps transitions has max_steps + 1.
+    let episode_steps = scenario.timing.max_steps as u64 + 1;
+    let warmup = episode_steps;
+    let ring_steps = (args.episodes as u64 - 1) * episode_steps;
+    let mut results = Results {
+        machine: Machine::read(),
+        episodes: args.episodes,
+        repeats: args.repeats as usize,
+        seed: args.seed,
+        episode_steps,
+        warmup,
+        ..Default::default()
+    };
+    eprintln!(
+        "mesh-bench: {} repeats of {} episodes on {} cores (load average {:.2})",
+        args.repeats, args.episodes, results.machine.cores, results.machine.load_before
+    );
+    for r in 0..args.repeats {
+        let setup = MeshSetup {
+            bin_dir: bin_dir.clone(),
+            config_dir: config_dir.clone(),
+            mesh_file: mesh_file.clone(),
+            episodes: args.episodes,
+            seed: args.seed + r,
+            warmup,
+            probe_fifo: (args.probe_fifo > 0).then_some(args.probe_fifo),
+        };
+        // The two mesh runs swap places every repeat, so a drift of the machine favours neither.
+        let (mesh, mesh_probe) = if r % 2 == 0 {
+            let m = runs::mesh(&setup, false).context("the mesh")?;
+            (
+                m,
+                runs::mesh(&setup, true).context("the mesh with the probe")?,
+            )
+        } else {
+            let p = runs::mesh(&setup, true).context("the mesh with the probe")?;
+            (runs::mesh(&setup, false).context("the mesh")?, p)
+        };
+        let in_process = runs::in_process(&config_dir, args.episodes, setup.seed)
+            .context("the cores in one process")?;
+        let ring =
+            runs::ring(&exe, &config_dir, warmup, ring_steps, false, None).context("the ring")?;
+        let ring_probe = runs::ring(
+            &exe,
+            &config_dir,
+            warmup,
+            ring_steps,
+            true,
+            setup.probe_fifo,
+        )
+        .context("the ring with the probe")?;
+        let step_p99 = mesh_probe
+            .hops
+            .as_ref()
+            .and_then(|h| h.hops.get(7))
+            .map_or(0, |s| s.p99);
+        eprintln!(
+            "  repeat {}/{}: mesh {} steps/s (with probe {}, step p99 {:.2} ms); in one process {}; bare ring {} (with probe {}); other load {:.2}/{:.2}/{:.2} cores",
+            r + 1,
+            args.repeats,
+            thousands(mesh.steps_per_s),
+            thousands(mesh_probe.steps_per_s),
+            step_p99 as f64 / 1e6,
+            thousands(in_process.steps_per_s),
+            thousands(ring.steps_per_s),
+            thousands(ring_probe.steps_per_s),
+            mesh.other_cores,
+            in_process.other_cores,
+            ring.other_cores,
+        );
+        results.mesh.push(mesh);
+        results.mesh_probe.push(mesh_probe);
+        results.in_process.push(in_process);
+        results.ring.push(ring);
+        results.ring_probe.push(ring_probe);
+    }
+    results.machine.load_after = load();
+    let markdown = results.markdown();
+    println!("{markdown}");
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_string_pretty(&results)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("mesh-bench: wrote {}", path.display());
+    }
+    if let Some(path) = &args.markdown {
+        std::fs::write(path, &markdown).with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("mesh-bench: wrote {}", path.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,734 @@
+//! The measurements, one run each: the mesh (without the probe, for its pace and each process's CPU
+//! and memory; with it, for the latencies), the bare ring (likewise), and the same cores in one
+//! process. Every run of processes gets an iceoryx2 namespace of its own, removed afterwards.
+
+use crate::probe::{self, Observed, Probe, Progress};
+use crate::procfs::{self, ProcSample};
+use crate::ring::{self, NodeReport, Role};
+use crate::stats::{Summary, now_ns};
+use crate::timeline::HopLatencies;
+use anyhow::{Context, Result, bail};
+use messages::Endpoint;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+
+/// How often the processes are read and the mesh's step is asked while it runs without the probe.
+const TICK: Duration = Duration::from_millis(20);
+/// How often the probe asks whether the run is over.
+const PROBE_POLL: Duration = Duration::from_millis(50);
+/// The longest any one run may take.
+const RUN_LIMIT: Duration = Duration::from_secs(600);
+
+static NEXT: AtomicU32 = AtomicU32::new(0);
+
+/// An iceoryx2 prefix and root of one run's own, and a scratch directory inside the root (logs,
+/// checkpoints); all of it is removed when dropped.
+pub struct Namespace {
+    pub iox: runtime::IoxSettings,
+    pub root: PathBuf,
+}
+
+impl Namespace {
+    /// A fresh namespace; `tag` (one letter) tells the runs apart in `/dev/shm`.
+    pub fn new(tag: char) -> Result<Namespace> {
+        let n = NEXT.fetch_add(1, Ordering::Relaxed);
+        // Short: root + prefix must fit a socket path.
+        let prefix = format!("cb{tag}{}{n}_", std::process::id() % 100_000);
+        let root = PathBuf::from(format!("/tmp/ctb/{prefix}/"));
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(root.join("bench"))
+            .with_context(|| format!("creating {}", root.display()))?;
+        Ok(Namespace {
+            iox: runtime::IoxSettings {
+                prefix,
+                root: root.display().to_string(),
+            },
+            root,
+        })
+    }
+
+    /// Where the run's logs and files go.
+    pub fn scratch(&self) -> PathBuf {
+        self.root.join("bench")
+    }
+
+    fn shm_files(&self) -> Vec<String> {
+        std::fs::read_dir("/dev/shm")
+            .map(|d| {
+                d.flatten()
+                    .map(|e| e.file_name().to_string_lossy().into_owned())
+                    .filter(|n| n.starts_with(&self.iox.prefix))
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// Shared-memory files still there once the run's processes are gone, except iceoryx2's one
+    /// 16-byte `global_mgmt` record per prefix, which it keeps by design.
+    pub fn leftovers(&self) -> Vec<String> {
+        self.shm_files()
+            .into_iter()
+            .filter(|n| !n.ends_with(".global_mgmt"))
+            .collect()
+    }
+}
+
+impl Drop for Namespace {
+    fn drop(&mut self) {
+        for f in self.shm_files() {
+            let _ = std::fs::remove_file(Path::new("/dev/shm").join(f));
+        }
+        let _ = std::fs::remove_dir_all(&self.root);
+        // The common parent too, once no other run uses it.
+        if let Some(parent) = self.root.parent() {
+            let _ = std::fs::remove_dir(parent);
+        }
+    }
+}
+
+/// A process the bench started: it gets SIGTERM if the bench dies, and is stopped when dropped.
+pub struct Spawned {
+    name: String,
+    child: Option<Child>,
+    status: Option<ExitStatus>,
+    log: PathBuf,
+}
+
+impl Spawned {
+    /// Starts `program` with `args` and `env`; its stdout and stderr go to `log`.
+    pub fn start(
+        name: &str,
+        program: &Path,
+        args: &[String],
+        env: &[(&str, String)],
+        log: PathBuf,
+    ) -> Result<Spawned> {
+        use std::os::unix::process::CommandExt;
+        let file =
+            std::fs::File::create(&log).with_context(|| format!("creating {}", log.display()))?;
+        let mut cmd = Command::new(program);
+        cmd.args(args)
+            .envs(env.iter().map(|(k, v)| (k, v)))
+            .stdin(Stdio::null())
+            .stdout(file.try_clone()?)
+            .stderr(file);
+        // SAFETY: prctl in the child before exec is async-signal-safe.
+        unsafe {
+            cmd.pre_exec(|| {
+                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+                Ok(())
+            });
+        }
+        let child = cmd
+            .spawn()
+            .with_context(|| format!("starting {}", program.display()))?;
+        Ok(Spawned {
+            name: name.to_owned(),
+            child: Some(child),
+            status: None,
+            log,
+        })
+    }
+
+    pub fn pid(&self) -> i32 {
+        self.child.as_ref().map_or(0, |c| c.id() as i32)
+    }
+
+    /// Its exit status, once it has exited.
+    pub fn exited(&mut self) -> Option<ExitStatus> {
+        if let Some(child) = &mut self.child
+            && let Ok(Some(status)) = child.try_wait()
+        {
+            self.status = Some(status);
+            self.child = None;
+        }
+        self.status
+    }
+
+    /// Waits up to `timeout` for it to exit on its own.
+    pub fn wait(&mut self, timeout: Duration) -> Option<ExitStatus> {
+        let end = Instant::now() + timeout;
+        loop {
+            if let Some(s) = self.exited() {
+                return Some(s);
+            }
+            if Instant::now() >= end {
+                return None;
+            }
+            // A child's exit has nothing to block on here; 5 ms is far below any timeout.
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
+    /// SIGTERM, up to `grace` to exit, then SIGKILL.
+    pub fn stop(&mut self, grace: Duration) -> Option<ExitStatus> {
+        if self.exited().is_none() {
+            // SAFETY: kill(2) on our own child, which has not been reaped.
+            unsafe {
+                libc::kill(self.pid(), libc::SIGTERM);
+            }
+            if self.wait(grace).is_none()
+                && let Some(child) = &mut self.child
+            {
+                let _ = child.kill();
+                self.status = child.wait().ok();
+                self.child = None;
+            }
+        }
+        self.status
+    }
+
+    pub fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    /// The last `n` lines of its log, for an error message.
+    pub fn tail(&self, n: usize) -> String {
+        let log = self.log();
+        let lines: Vec<&str> = log.lines().collect();
+        format!(
+            "----- last lines of {}'s log -----\n{}",
+            self.name,
+            lines[lines.len().saturating_sub(n)..].join("\n")
+        )
+    }
+}
+
+impl Drop for Spawned {
+    fn drop(&mut self) {
+        self.stop(Duration::from_secs(5));
+    }
+}
+
+/// One reading while a run goes on: the step the loop is at and its processes.
+#[derive(Clone, Debug)]
+pub struct Tick {
+    pub t_ns: u64,
+    pub seq: u64,
+    pub procs: Vec<ProcSample>,
+    /// The whole machine's busy CPU time and the bench's own (ns).
+    pub busy_ns: u64,
+    pub own_ns: u64,
+}
+
+/// The steady part of a run: from the first reading past the warm-up to the last reading after
+/// which the loop still moved on (so both ends fall while it runs, not in its start or stop).
+pub fn window(ticks: &[Tick], warmup: u64) -> Option<(usize, usize)> {
+    let a = ticks.iter().position(|t| t.seq > warmup)?;
+    let b = (0..ticks.len().saturating_sub(1))
+        .rev()
+        .find(|&i| ticks[i + 1].seq > ticks[i].seq)?;
+    (b > a && ticks[b].t_ns > ticks[a].t_ns).then_some((a, b))
+}
+
+/// One process's use of the machine in a run.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ProcessUse {
+    pub name: String,
+    /// CPU time over the whole run (start-up included), at its last reading.
+    pub cpu_ms: f64,
+    /// CPU time per step in the steady window.
+    pub cpu_us_per_step: f64,
+    /// The system (kernel) share of its CPU time.
+    pub sys_share: f64,
+    /// Resident memory at its last reading, its peak, and the shared-memory part of it (MiB).
+    pub rss_mib: f64,
+    pub hwm_mib: f64,
+    pub shmem_mib: f64,
+}
+
+/// The order processes are listed in: the loop's.
+const ORDER: [&str; 9] = [
+    "simulator",
+    "camera",
+    "perception",
+    "sway-behaviour",
+    "yaw-behaviour",
+    "surge-controller",
+    "thruster-allocator",
+    "monitor",
+    "supervisor",
+];
+
+/// Each process's use from the readings, with the steady window `(a, b)`.
+pub fn usage(ticks: &[Tick], (a, b): (usize, usize)) -> Vec<ProcessUse> {
+    let steps = ticks[b].seq.saturating_sub(ticks[a].seq).max(1) as f64;
+    let mut pids: Vec<i32> = ticks
+        .iter()
+        .flat_map(|t| t.procs.iter().map(|p| p.pid))
+        .collect();
+    pids.sort_unstable();
+    pids.dedup();
+    let find = |tick: &Tick, pid: i32| tick.procs.iter().find(|p| p.pid == pid).cloned();
+    let mut out: Vec<ProcessUse> = pids
+        .into_iter()
+        .filter_map(|pid| {
+            let last = ticks.iter().rev().find_map(|t| find(t, pid))?;
+            let steady = match (find(&ticks[a], pid), find(&ticks[b], pid)) {
+                (Some(x), Some(y)) => y.cpu_ns.saturating_sub(x.cpu_ns) as f64 / steps / 1e3,
+                _ => f64::NAN,
+            };
+            let ticks_total = (last.utime_ticks + last.stime_ticks).max(1) as f64;
+            const MIB: f64 = 1024.0;
+            Some(ProcessUse {
+                name: last.name.clone(),
+                cpu_ms: last.cpu_ns as f64 / 1e6,
+                cpu_us_per_step: steady,
+                sys_share: last.stime_ticks as f64 / ticks_total,
+                rss_mib: last.rss_kb as f64 / MIB,
+                hwm_mib: last.hwm_kb as f64 / MIB,
+                shmem_mib: last.shmem_kb as f64 / MIB,
+            })
+        })
+        .collect();
+    let rank = |n: &str| ORDER.iter().position(|o| *o == n).unwrap_or(ORDER.len());
+    out.sort_by(|x, y| rank(&x.name).cmp(&rank(&y.name)).then(x.name.cmp(&y.name)));
+    out
+}
+
+/// The CPUs busy with anything but the watched processes and the bench itself over the window, in
+/// cores (another user's build shows here).
+pub fn other_cores(ticks: &[Tick], (a, b): (usize, usize)) -> f64 {
+    let (x, y) = (&ticks[a], &ticks[b]);
+    let watched: u64 = y
+        .procs
+        .iter()
+        .filter_map(|p| {
+            let before = x.procs.iter().find(|q| q.pid == p.pid)?;
+            Some(p.cpu_ns.saturating_sub(before.cpu_ns))
+        })
+        .sum();
+    let busy = y.busy_ns.saturating_sub(x.busy_ns) as f64;
+    let ours = (watched + y.own_ns.saturating_sub(x.own_ns)) as f64;
+    ((busy - ours) / (y.t_ns - x.t_ns).max(1) as f64).max(0.0)
+}
+
+/// Reads the step and `pids()`'s processes every [`TICK`] until `done()`.
+fn watch(
+    node: &iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
+    progress: &mut Progress,
+    pids: impl Fn() -> Vec<i32>,
+    mut done: impl FnMut() -> bool,
+) -> Result<Vec<Tick>> {
+    let start = Instant::now();
+    let mut ticks = Vec::new();
+    loop {
+        let seq = progress.latest_seq()?;
+        let procs = pids().into_iter().filter_map(procfs::sample).collect();
+        ticks.push(Tick {
+            t_ns: now_ns(),
+            seq,
+            procs,
+            busy_ns: procfs::machine_busy_ns(),
+            own_ns: procfs::own_cpu_ns(),
+        });
+        if done() {
+            return Ok(ticks);
+        }
+        if start.elapsed() > RUN_LIMIT {
+            bail!("the run took longer than {RUN_LIMIT:?}");
+        }
+        if node.wait(TICK).is_err() {
+            bail!("interrupted");
+        }
+    }
+}
+
+/// How the bench follows a run: the probe on every topic, or only the step it is at.
+enum Watcher {
+    Probe(Box<Probe>),
+    Progress(Progress),
+}
+
+impl Watcher {
+    /// Opened before the run's processes start, so the first step is seen.
+    fn open(
+        node: &iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
+        probe: bool,
+    ) -> Result<Watcher> {
+        Ok(if probe {
+            Watcher::Probe(Box::new(Probe::open(node, Endpoint::Sim)?))
+        } else {
+            Watcher::Progress(Progress::open(node, Endpoint::Sim)?)
+        })
+    }
+}
+
+/// What the probe cost and saw.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ProbeUse {
+    /// The probe thread's CPU time and wake-ups per step.
+    pub cpu_us_per_step: f64,
+    pub wakeups_per_step: f64,
+    /// Reception minus the sender's send time (the bare ring only, where senders stamp it).
+    pub delay: Option<Summary>,
+}
+
+/// The probe's use over a run of `steps` steps; in the ring, its delay from step `first` on.
+fn probe_use(seen: &Observed, steps: u64, ring_from: Option<u64>) -> ProbeUse {
+    let steps = steps.max(1) as f64;
+    ProbeUse {
+        cpu_us_per_step: seen.cpu_ns as f64 / 1e3 / steps,
+        wakeups_per_step: seen.wakeups as f64 / steps,
+        delay: ring_from.map(|first| seen.delay(first)),
+    }
+}
+
+/// Where the mesh's programs and files are, and what to run.
+#[derive(Clone, Debug)]
+pub struct MeshSetup {
+    pub bin_dir: PathBuf,
+    pub config_dir: PathBuf,
+    pub mesh_file: PathBuf,
+    pub episodes: u32,
+    pub seed: u64,
+    /// Steps not measured at the start (the first episode).
+    pub warmup: u64,
+    /// Run the probe at this real-time (`SCHED_FIFO`) priority; `None`: the normal one.
+    pub probe_fifo: Option<i32>,
+}
+
+/// One run of the real mesh.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct MeshRun {
+    pub probe_attached: bool,
+    /// Closed-loop steps per second in the steady window, and the steps in it.
+    pub steps_per_s: f64,
+    pub steps: u64,
+    /// From the supervisor's start to its exit.
+    pub wall_s: f64,
+    /// Without the probe: each process's CPU and memory.
+    pub processes: Vec<ProcessUse>,
+    /// Without the probe: cores busy with other work meanwhile (see [`other_cores`]).
+    pub other_cores: f64,
+    /// With the probe: latency per hop, per step and per cycle.
+    pub hops: Option<HopLatencies>,
+    pub probe: Option<ProbeUse>,
+    /// Shared-memory files left after the run (should be none).
+    pub leftovers: usize,
+}
+
+/// Runs the mesh once through the supervisor, with images.
+pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
+    let ns = Namespace::new(if with_probe { 'p' } else { 'm' })?;
+    let scratch = ns.scratch();
+    let node = probe::node(&ns.iox, "mesh-bench")?;
+    let watcher = Watcher::open(&node, with_probe)?;
+    let set = |k: &str, v: String| ["--set".to_owned(), format!("{k}={v}")];
+    let mut args: Vec<String> = vec![
+        "--mesh".into(),
+        setup.mesh_file.display().to_string(),
+        "--config".into(),
+        setup.config_dir.display().to_string(),
+        "--seed".into(),
+        setup.seed.to_string(),
+        "--iox-prefix".into(),
+        ns.iox.prefix.clone(),
+        "--iox-root".into(),
+        ns.iox.root.clone(),
+    ];
+    for (k, v) in [
+        ("episodes", setup.episodes.to_string()),
+        ("eyes", "images".to_owned()),
+        ("json", scratch.join("run.json").display().to_string()),
+        // A fresh state directory: the behaviours start from scratch, never from an earlier run.
+        ("state", scratch.join("state").display().to_string()),
+    ] {
+        args.extend(set(k, v));
+    }
+    let started = Instant::now();
+    let mut sup = Spawned::start(
+        "supervisor",
+        &setup.bin_dir.join("supervisor"),
+        &args,
+        &[],
+        scratch.join("supervisor.log"),
+    )?;
+    let sup_pid = sup.pid();
+    let mut run = MeshRun {
+        probe_attached: with_probe,
+        ..Default::default()
+    };
+    match watcher {
+        Watcher::Progress(mut progress) => {
+            let pids = || {
+                let mut p = procfs::children(sup_pid);
+                p.push(sup_pid);
+                p
+            };
+            let ticks = watch(&node, &mut progress, pids, || sup.exited().is_some())?;
+            let w = window(&ticks, setup.warmup).with_context(|| {
+                format!("the mesh never ran past its warm-up\n{}", sup.tail(30))
+            })?;
+            let (a, b) = (&ticks[w.0], &ticks[w.1]);
+            run.steps = b.seq - a.seq;
+            run.steps_per_s = run.steps as f64 / ((b.t_ns - a.t_ns) as f64 * 1e-9);
+            run.processes = usage(&ticks, w);
+            run.other_cores = other_cores(&ticks, w);
+        }
+        Watcher::Probe(probe) => {
+            probe::set_realtime(setup.probe_fifo)?;
+            let seen = probe.run(PROBE_POLL, || sup.exited().is_some());
+            probe::set_realtime(None)?;
+            let seen = seen?;
+            let first = setup.warmup + 1;
+            run.steps_per_s = seen.timeline.steps_per_s(first).unwrap_or(f64::NAN);
+            let hops = seen.timeline.hops(first);
+            run.steps = hops.hops.first().map_or(0, |h| h.n as u64);
+            // The probe's cost per step over the whole run (its wake-ups start with the mesh).
+            let all_steps = seen
+                .timeline
+                .last_seq(crate::timeline::Point::State)
+                .unwrap_or(1);
+            run.probe = Some(probe_use(&seen, all_steps, None));
+            run.hops = Some(hops);
+        }
+    }
+    let status = sup.wait(RUN_LIMIT);
+    run.wall_s = started.elapsed().as_secs_f64();
+    if !status.is_some_and(|s| s.success()) {
+        bail!("the mesh failed ({status:?})\n{}", sup.tail(40));
+    }
+    drop(node);
+    run.leftovers = ns.leftovers().len();
+    Ok(run)
+}
+
+/// One run of the bare ring.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RingRun {
+    pub probe_attached: bool,
+    pub steps_per_s: f64,
+    pub steps: u64,
+    /// Each step from its state sent to its setpoints received, in the simulator node.
+    pub step: Summary,
+    /// Each node's input hop, one way (exact: senders stamp their send time).
+    pub hops: Vec<(Role, Summary)>,
+    /// Without the probe: CPU per step of the seven nodes together, and the cores busy with other
+    /// work meanwhile.
+    pub cpu_us_per_step: f64,
+    pub other_cores: f64,
+    /// With the probe: what it saw (its own delay) and cost.
+    pub probe: Option<ProbeUse>,
+    pub probe_hops: Option<HopLatencies>,
+    pub leftovers: usize,
+}
+
+/// Runs the bare ring once: `warmup` steps, then `steps` timed.
+pub fn ring(
+    exe: &Path,
+    config_dir: &Path,
+    warmup: u64,
+    steps: u64,
+    with_probe: bool,
+    probe_fifo: Option<i32>,
+) -> Result<RingRun> {
+    let ns = Namespace::new(if with_probe { 'q' } else { 'r' })?;
+    let node = probe::node(&ns.iox, "mesh-bench")?;
+    let watcher = Watcher::open(&node, with_probe)?;
+    let env = [
+        ("CABLETRACK_CONFIG", config_dir.display().to_string()),
+        ("CABLETRACK_IOX_PREFIX", ns.iox.prefix.clone()),
+        ("CABLETRACK_IOX_ROOT", ns.iox.root.clone()),
+        ("RUST_LOG", "warn".to_owned()),
+    ];
+    let mut nodes = Vec::new();
+    // The driver last: the others are listening by then (it re-sends until answered anyway).
+    for role in Role::ALL.iter().rev() {
+        let args: Vec<String> = [
+            "ring-node",
+            "--role",
+            &format!("{role:?}").to_lowercase(),
+            "--warmup",
+            &warmup.to_string(),
+            "--steps",
+            &steps.to_string(),
+        ]
+        .map(String::from)
+        .into();
+        let log = ns.scratch().join(format!("{}.log", role.name()));
+        nodes.push((*role, Spawned::start(role.name(), exe, &args, &env, log)?));
+    }
+    let driver = nodes.len() - 1;
+    let mut run = RingRun {
+        probe_attached: with_probe,
+        ..Default::default()
+    };
+    {
+        let (others, last) = nodes.split_at_mut(driver);
+        let sim = &mut last[0].1;
+        match watcher {
+            Watcher::Progress(mut progress) => {
+                let pids: Vec<i32> = others
+                    .iter()
+                    .map(|(_, s)| s.pid())
+                    .chain([sim.pid()])
+                    .collect();
+                let ticks = watch(
+                    &node,
+                    &mut progress,
+                    || pids.clone(),
+                    || sim.exited().is_some(),
+                )?;
+                if let Some(w) = window(&ticks, warmup) {
+                    run.cpu_us_per_step = usage(&ticks, w)
+                        .iter()
+                        .map(|p| p.cpu_us_per_step)
+                        .filter(|c| c.is_finite())
+                        .sum();
+                    run.other_cores = other_cores(&ticks, w);
+                }
+            }
+            Watcher::Probe(probe) => {
+                probe::set_realtime(probe_fifo)?;
+                let seen = probe.run(PROBE_POLL, || sim.exited().is_some());
+                probe::set_realtime(None)?;
+                let seen = seen?;
+                run.probe = Some(probe_use(&seen, warmup + steps, Some(warmup + 1)));
+                run.probe_hops = Some(seen.timeline.hops(warmup + 1));
+            }
+        }
+        let status = sim.wait(RUN_LIMIT);
+        if !status.is_some_and(|s| s.success()) {
+            bail!("the ring failed ({status:?})\n{}", sim.tail(20));
+        }
+    }
+    let mut reports: Vec<NodeReport> = Vec::new();
+    for (role, node) in &mut nodes {
+        let status = node.stop(Duration::from_secs(5));
+        if !status.is_some_and(|s| s.success()) {
+            bail!("ring node {role:?} failed ({status:?})\n{}", node.tail(20));
+        }
+        reports.push(
+            ring::parse_report(&node.log())
+                .with_context(|| format!("ring node {role:?}\n{}", node.tail(20)))?,
+        );
+    }
+    let sim = reports
+        .iter()
+        .find(|r| r.role == Role::Simulator)
+        .context("the ring's simulator report")?;
+    run.steps_per_s = sim.steps_per_s();
+    run.steps = sim.steps;
+    run.step = sim.step.unwrap_or_default();
+    run.hops = Role::ALL
+        .iter()
+        .filter_map(|role| {
+            reports
+                .iter()
+                .find(|r| r.role == *role)
+                .map(|r| (*role, r.hop))
+        })
+        .collect();
+    drop(nodes);
+    drop(node);
+    run.leftovers = ns.leftovers().len();
+    Ok(run)
+}
+
+/// One run of the same cores in one process, no IPC.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct InProcessRun {
+    pub steps_per_s: f64,
+    pub steps: u64,
+    /// Cores busy with other work meanwhile.
+    pub other_cores: f64,
+}
+
+/// The trainer's `World` with images and both NAC learners on one thread: the first episode is the
+/// warm-up, the others are timed. A step is one pass of the loop, as in the mesh (an episode of
+/// `n` transitions has `n + 1`: its terminal step is observed too).
+pub fn in_process(config_dir: &Path, episodes: u32, seed: u64) -> Result<InProcessRun> {
+    let setup = trainer::Setup::load(config_dir, config::Preset::Default)?
+        .with_eyes(trainer::EyesKind::Images)?;
+    let mut world = trainer::world::World::new(
+        &setup.scenario,
+        &setup.learning,
+        learning::Algorithm::Nac,
+        setup.eyes(seed),
+        seed,
+    );
+    world.run_episode();
+    let (busy, own) = (procfs::machine_busy_ns(), procfs::own_cpu_ns());
+    let start = Instant::now();
+    let steps: u64 = (1..episodes.max(2))
+        .map(|_| world.run_episode().steps as u64 + 1)
+        .sum();
+    let wall = start.elapsed();
+    let others = procfs::machine_busy_ns().saturating_sub(busy) as f64
+        - procfs::own_cpu_ns().saturating_sub(own) as f64;
+    Ok(InProcessRun {
+        steps_per_s: steps as f64 / wall.as_secs_f64(),
+        steps,
+        other_cores: (others / wall.as_nanos().max(1) as f64).max(0.0),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tick(t_ms: u64, seq: u64, cpu_ms: u64) -> Tick {
+        Tick {
+            t_ns: t_ms * 1_000_000,
+            seq,
+            procs: vec![ProcSample {
+                pid: 7,
+                name: "camera".into(),
+                cpu_ns: cpu_ms * 1_000_000,
+                utime_ticks: 3,
+                stime_ticks: 1,
+                rss_kb: 2048,
+                hwm_kb: 4096,
+                shmem_kb: 1024,
+            }],
+            // The machine busy twice the camera's time plus 1 ms per tick of the bench.
+            busy_ns: (2 * cpu_ms + t_ms / 20) * 1_000_000,
+            own_ns: t_ms / 20 * 1_000_000,
+        }
+    }
+
+    #[test]
+    fn the_window_is_the_steady_part() {
+        // Start-up (seq 0), warm-up up to 201, running, then stopped at 900.
+        let ticks = [
+            tick(0, 0, 10),
+            tick(20, 100, 12),
+            tick(40, 250, 14),
+            tick(60, 500, 20),
+            tick(80, 800, 26),
+            tick(100, 900, 28),
+            tick(120, 900, 29),
+            tick(140, 900, 29),
+        ];
+        let w = window(&ticks, 201).unwrap();
+        assert_eq!(w, (2, 4));
+        let u = usage(&ticks, w);
+        assert_eq!(u.len(), 1);
+        // 12 ms over 550 steps; the totals from the last reading.
+        assert!((u[0].cpu_us_per_step - 12e3 / 550.0).abs() < 1e-9);
+        assert_eq!(u[0].cpu_ms, 29.0);
+        assert_eq!(
+            (u[0].rss_mib, u[0].hwm_mib, u[0].shmem_mib),
+            (2.0, 4.0, 1.0)
+        );
+        assert_eq!(u[0].sys_share, 0.25);
+        assert!(window(&ticks[..3], 201).is_none());
+        // 12 ms of other work over 40 ms.
+        assert!((other_cores(&ticks, w) - 0.3).abs() < 1e-9);
+    }
+
+    #[test]
+    fn namespaces_are_short_and_leave_nothing() {
+        let ns = Namespace::new('t').unwrap();
+        assert!(ns.iox.root.len() + ns.iox.prefix.len() <= 63);
+        assert!(ns.iox.config().is_ok());
+        let root = ns.root.clone();
+        assert!(ns.scratch().is_dir());
+        drop(ns);
+        assert!(!root.exists());
+    }
+}
