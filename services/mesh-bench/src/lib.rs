@@ -21,6 +21,9 @@
 //!
 //! The two mesh runs swap places from one repeat to the next. The report gives medians over the
 //! repeats and compares the mesh's time per step with (a) + (b).
+//!
+//! `mesh-bench vehicle` ([`vehicle`]) measures the vehicle endpoint instead: camera-to-thruster
+//! latency at the vehicle's 5 Hz over many steps, and every service's CPU and memory.
 
 pub mod probe;
 pub mod procfs;
@@ -29,3 +32,4 @@ pub mod ring;
 pub mod runs;
 pub mod stats;
 pub mod timeline;
+pub mod vehicle;

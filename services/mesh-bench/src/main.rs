@@ -6,6 +6,7 @@ use clap::{Args, Parser, Subcommand};
 use mesh_bench::report::{Machine, Results, load, thousands};
 use mesh_bench::ring::{self, Role};
 use mesh_bench::runs::{self, MeshSetup};
+use mesh_bench::vehicle::VehicleSetup;
 use runtime::CommonArgs;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -52,8 +53,40 @@ struct Bench {
     markdown: Option<PathBuf>,
 }
 
+#[derive(Args)]
+struct VehicleArgs {
+    /// Frames to time, at least (at 5 Hz, 10,000 take 35 minutes).
+    #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u64).range(1..))]
+    steps: u64,
+    /// Times real time (1: the vehicle's 5 Hz).
+    #[arg(long, default_value_t = 1.0)]
+    speed: f64,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Step one's episodes in simulation, before the vehicle run.
+    #[arg(long, default_value_t = 100)]
+    sim_episodes: u32,
+    /// Directory holding scenario.toml, learning.toml and twin.toml.
+    #[arg(long, default_value = "config")]
+    config: PathBuf,
+    /// The mesh files of step one and of the vehicle.
+    #[arg(long, default_value = "config/sim-mesh.toml")]
+    sim_mesh: PathBuf,
+    #[arg(long, default_value = "config/vehicle.toml")]
+    vehicle_mesh: PathBuf,
+    /// Write the figures here as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Write the Markdown report here too.
+    #[arg(long)]
+    markdown: Option<PathBuf>,
+}
+
 #[derive(Subcommand)]
 enum Hidden {
+    /// The vehicle endpoint: camera-to-thruster latency at 5 Hz over many steps, CPU and memory of
+    /// every service (step one runs first, in simulation, for the policy the vehicle starts from).
+    Vehicle(VehicleArgs),
     /// One node of the bare ring (started by the bench itself).
     #[command(hide = true)]
     RingNode {
@@ -72,6 +105,16 @@ enum Hidden {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if let Some(Hidden::Vehicle(args)) = &cli.command {
+        runtime::init_tracing();
+        return match vehicle(args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(err) => {
+                eprintln!("mesh-bench: error: {err:#}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     if let Some(Hidden::RingNode {
         role,
         warmup,
@@ -93,6 +136,46 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+fn vehicle(args: &VehicleArgs) -> Result<()> {
+    if !(args.speed.is_finite() && args.speed > 0.0) {
+        anyhow::bail!("--speed {} must be a number > 0", args.speed);
+    }
+    let canon = |p: &PathBuf, what: &str| {
+        p.canonicalize()
+            .with_context(|| format!("{what} {}", p.display()))
+    };
+    let config_dir = canon(&args.config, "the config directory")?;
+    let scenario: config::Scenario = config::load(&config_dir.join("scenario.toml"))?;
+    let twin: config::TwinParams = config::load(&config_dir.join("twin.toml"))?;
+    let exe = std::env::current_exe()?;
+    let setup = VehicleSetup {
+        bin_dir: exe.parent().context("the bench's directory")?.to_owned(),
+        sim_mesh: canon(&args.sim_mesh, "the mesh file")?,
+        vehicle_mesh: canon(&args.vehicle_mesh, "the mesh file")?,
+        config_dir,
+        steps: args.steps,
+        speed: args.speed,
+        seed: args.seed,
+        sim_episodes: args.sim_episodes,
+        steps_per_trial: (twin.trials.duration_s / scenario.timing.sample_time_s).round() as u32,
+        drop_probability: twin.frames.dropped.rate(),
+        period_s: scenario.timing.sample_time_s,
+    };
+    let run = mesh_bench::vehicle::run(&setup)?;
+    let markdown = run.markdown(args.steps);
+    println!("{markdown}");
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_string_pretty(&run)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("mesh-bench: wrote {}", path.display());
+    }
+    if let Some(path) = &args.markdown {
+        std::fs::write(path, &markdown).with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("mesh-bench: wrote {}", path.display());
+    }
+    Ok(())
 }
 
 fn bench(args: &Bench) -> Result<()> {

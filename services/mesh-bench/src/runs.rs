@@ -241,8 +241,9 @@ pub struct ProcessUse {
 }
 
 /// The order processes are listed in: the loop's.
-const ORDER: [&str; 9] = [
+const ORDER: [&str; 10] = [
     "simulator",
+    "vehicle-twin",
     "camera",
     "perception",
     "sway-behaviour",

@@ -11,6 +11,7 @@
 //!   or until the cable is lost, then a reposition).
 //! - [`driver`]: the pacing of the `vehicle-twin` process: real time (5 Hz; `--speed K` times
 //!   faster) or lockstep with the mesh (`--lockstep`, deterministic, with a deadline).
+//! - [`latency`]: the camera-to-thruster latency as the hardware sees it (`--latency FILE`).
 //! - [`world`]: [`TwinWorld`], step two in one process: the twin with the vehicle endpoint's own
 //!   cores (perception, behaviours, surge, allocator), no IPC, for fast experiments and tests.
 //!
@@ -19,6 +20,7 @@
 //! allocator reach them through their frame source and thruster sink.
 
 pub mod driver;
+pub mod latency;
 pub mod plant;
 pub mod twin;
 pub mod world;

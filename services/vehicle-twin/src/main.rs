@@ -10,11 +10,13 @@ use clap::Parser;
 use config::TwinParams;
 use messages::StepStatus;
 use runtime::{CommonArgs, Flow, Timer};
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 use vehicle_twin::Twin;
 use vehicle_twin::driver::{Cause, Lockstep, Reaction, RealTime, Timing};
+use vehicle_twin::latency::{self, LatencyMeter};
 use vehicle_twin::twin::{Shot, TrialEnd};
 
 #[derive(Parser)]
@@ -48,6 +50,57 @@ struct Args {
     /// Record the dive: every frame published, as a replayable dive (adapters::replay) in DIR.
     #[arg(long, value_name = "DIR")]
     record: Option<PathBuf>,
+    /// Write every frame's camera-to-thruster latency here (CSV: seq,trial,step,latency_ns): from the
+    /// frame's publication to the arrival of the setpoints answering it.
+    #[arg(long, value_name = "FILE")]
+    latency: Option<PathBuf>,
+}
+
+/// Times each published frame until its answer (`--latency`).
+struct Latency {
+    meter: LatencyMeter,
+    out: std::io::BufWriter<std::fs::File>,
+    path: PathBuf,
+    samples: u64,
+    max: Duration,
+}
+
+impl Latency {
+    fn create(path: &std::path::Path) -> anyhow::Result<Latency> {
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("creating the latency file {}", path.display()))?;
+        let mut out = std::io::BufWriter::new(file);
+        writeln!(out, "{}", latency::HEADER)?;
+        Ok(Latency {
+            meter: LatencyMeter::new(),
+            out,
+            path: path.to_owned(),
+            samples: 0,
+            max: Duration::ZERO,
+        })
+    }
+
+    fn answered(&mut self, time_ns: u64) -> anyhow::Result<()> {
+        if let Some(s) = self.meter.answered(time_ns, Instant::now()) {
+            latency::write_sample(&mut self.out, &s)?;
+            self.samples += 1;
+            self.max = self.max.max(s.latency);
+        }
+        Ok(())
+    }
+
+    fn finish(mut self) -> anyhow::Result<()> {
+        self.out
+            .flush()
+            .with_context(|| format!("writing {}", self.path.display()))?;
+        tracing::info!(
+            file = %self.path.display(),
+            frames = self.samples,
+            max_us = self.max.as_micros() as u64,
+            "camera-to-thruster latencies written"
+        );
+        Ok(())
+    }
 }
 
 /// Publishes the twin's frames (and records them).
@@ -59,11 +112,21 @@ struct Camera {
 }
 
 impl Camera {
-    fn publish(&mut self, twin: &mut Twin, shot: &Shot, again: bool) -> anyhow::Result<()> {
+    fn publish(
+        &mut self,
+        twin: &mut Twin,
+        shot: &Shot,
+        again: bool,
+        latency: &mut Option<Latency>,
+    ) -> anyhow::Result<()> {
         twin.render(&mut self.image)?;
         let meta = shot.meta(self.size.0, self.size.1);
         self.port
             .send(&meta, |out| out.copy_from_slice(&self.image))?;
+        // Timed from the send: rendering is the camera hardware's work, not the vehicle's.
+        if !again && let Some(l) = latency.as_mut() {
+            l.meter.published(shot, Instant::now());
+        }
         if !again && let Some(r) = self.recorder.as_mut() {
             r.write(&meta, &self.image)?;
         }
@@ -110,6 +173,7 @@ fn main() -> ExitCode {
             record = ?args.record,
             "ready"
         );
+        let mut latency = args.latency.as_deref().map(Latency::create).transpose()?;
         let mut log = TrialLog::new(twin.steps_per_trial());
         if args.lockstep {
             let timing = Timing::new(
@@ -117,7 +181,10 @@ fn main() -> ExitCode {
                 Duration::from_millis(args.deadline_ms),
             );
             let (mut lockstep, first) = Lockstep::start(twin, timing, args.trials, Instant::now());
-            let mut act = |lockstep: &mut Lockstep, r: Reaction| -> anyhow::Result<Flow> {
+            let mut act = |lockstep: &mut Lockstep,
+                           latency: &mut Option<Latency>,
+                           r: Reaction|
+             -> anyhow::Result<Flow> {
                 match r {
                     Reaction::Idle => {}
                     Reaction::Resend {
@@ -132,7 +199,7 @@ fn main() -> ExitCode {
                                 "waiting for the mesh: no setpoints yet"
                             );
                         }
-                        camera.publish(lockstep.twin_mut(), &shot, true)?;
+                        camera.publish(lockstep.twin_mut(), &shot, true, latency)?;
                     }
                     Reaction::Publish {
                         shot,
@@ -141,7 +208,7 @@ fn main() -> ExitCode {
                         cause,
                     } => {
                         log.closed(&ended, passed, cause, &shot);
-                        camera.publish(lockstep.twin_mut(), &shot, false)?;
+                        camera.publish(lockstep.twin_mut(), &shot, false, latency)?;
                     }
                     Reaction::Finished { ended } => {
                         log.closed(&ended, 0, Cause::Answered, lockstep.current());
@@ -150,20 +217,23 @@ fn main() -> ExitCode {
                 }
                 Ok(Flow::Continue)
             };
-            act(&mut lockstep, first)?;
+            act(&mut lockstep, &mut latency, first)?;
             rt.serve(
                 &[thrusters.listener()],
                 Timer::Timeout(timing.tick()),
                 |_| {
                     while let Some(sp) = thrusters.receive()? {
+                        if let Some(l) = latency.as_mut() {
+                            l.answered(sp.stamp.time_ns)?;
+                        }
                         let r =
                             lockstep.on_setpoints(sp.stamp.time_ns, sp.as_slice(), Instant::now());
-                        if act(&mut lockstep, r)? == Flow::Stop {
+                        if act(&mut lockstep, &mut latency, r)? == Flow::Stop {
                             return Ok(Flow::Stop);
                         }
                     }
                     let r = lockstep.on_time(Instant::now());
-                    act(&mut lockstep, r)
+                    act(&mut lockstep, &mut latency, r)
                 },
             )?;
         } else {
@@ -173,6 +243,9 @@ fn main() -> ExitCode {
             let tick = (period / 4).max(Duration::from_millis(1));
             rt.serve(&[thrusters.listener()], Timer::Interval(tick), |_| {
                 while let Some(sp) = thrusters.receive()? {
+                    if let Some(l) = latency.as_mut() {
+                        l.answered(sp.stamp.time_ns)?;
+                    }
                     clock.on_setpoints(sp.as_slice());
                 }
                 let r = clock.on_time(Instant::now(), camera.port.subscribers() > 0);
@@ -181,7 +254,7 @@ fn main() -> ExitCode {
                         shot, ended, cause, ..
                     } => {
                         log.closed(&ended, 0, cause, &shot);
-                        camera.publish(clock.twin_mut(), &shot, false)?;
+                        camera.publish(clock.twin_mut(), &shot, false, &mut latency)?;
                     }
                     Reaction::Finished { ended } => {
                         let shot = *clock.twin().current().expect("started");
@@ -192,6 +265,9 @@ fn main() -> ExitCode {
                 }
                 Ok(Flow::Continue)
             })?;
+        }
+        if let Some(l) = latency.take() {
+            l.finish()?;
         }
         if let Some(r) = camera.recorder.take() {
             let dir = r.dir().to_owned();

@@ -1,0 +1,313 @@
+//! The vehicle endpoint's benchmark (`mesh-bench vehicle`): camera-to-thruster latency at the
+//! vehicle's 5 Hz over many steps, and each service's CPU and resident memory.
+//!
+//! The run is what the vehicle does in step two: the step-one policy is learned first through the
+//! simulation mesh (`config/sim-mesh.toml`, ideal perception, fast), then `config/vehicle.toml` runs
+//! the vehicle services against the twin, paced by its clock, learning online. The twin times every
+//! frame from its publication to the arrival of the setpoints answering it (`vehicle-twin --latency`,
+//! see `vehicle_twin::latency`): the whole vehicle path, both hardware adapters and every wake-up
+//! included. Meanwhile the bench reads each process in `/proc` every [`TICK`].
+
+use crate::procfs;
+use crate::runs::{Namespace, ProcessUse, Spawned, Tick, usage};
+use crate::stats::{Summary, now_ns};
+use anyhow::{Context, Result, bail};
+use serde::{Deserialize, Serialize};
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// How often the processes are read.
+const TICK: Duration = Duration::from_secs(1);
+/// How often progress is printed.
+const PROGRESS: Duration = Duration::from_secs(60);
+
+/// What to run.
+#[derive(Clone, Debug)]
+pub struct VehicleSetup {
+    pub bin_dir: PathBuf,
+    pub config_dir: PathBuf,
+    pub sim_mesh: PathBuf,
+    pub vehicle_mesh: PathBuf,
+    /// Frames to time, at least.
+    pub steps: u64,
+    /// Times real time (1: the vehicle's 5 Hz).
+    pub speed: f64,
+    pub seed: u64,
+    /// Step one's episodes in simulation.
+    pub sim_episodes: u32,
+    /// The twin's steps per trial and dropped-frame probability, and the control period (s).
+    pub steps_per_trial: u32,
+    pub drop_probability: f64,
+    pub period_s: f64,
+}
+
+impl VehicleSetup {
+    /// Trials enough for `steps` answered frames, with a margin for dropped frames.
+    pub fn trials(&self) -> u32 {
+        let per_trial = (self.steps_per_trial as f64 + 1.0) * (1.0 - self.drop_probability) * 0.97;
+        (self.steps as f64 / per_trial).ceil().max(1.0) as u32
+    }
+}
+
+/// The results of one run.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct VehicleRun {
+    pub speed: f64,
+    pub trials: u32,
+    pub wall_s: f64,
+    /// Camera-to-thruster latency per answered frame (ns).
+    pub latency: Summary,
+    /// Each process's CPU (per step: per control period) and memory.
+    pub processes: Vec<ProcessUse>,
+    /// Cores busy with other work meanwhile.
+    pub other_cores: f64,
+    /// Restarts the supervisor logged (should be none).
+    pub restarts: usize,
+    /// Shared-memory files left after the run (should be none).
+    pub leftovers: usize,
+}
+
+/// Runs step one in simulation, then the vehicle mesh at `speed`, and measures it.
+pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
+    let ns = Namespace::new('v')?;
+    let scratch = ns.scratch();
+    let common = |mesh: &PathBuf| -> Vec<String> {
+        vec![
+            "--mesh".into(),
+            mesh.display().to_string(),
+            "--config".into(),
+            setup.config_dir.display().to_string(),
+            "--seed".into(),
+            setup.seed.to_string(),
+            "--iox-prefix".into(),
+            ns.iox.prefix.clone(),
+            "--iox-root".into(),
+            ns.iox.root.clone(),
+        ]
+    };
+    let set = |args: &mut Vec<String>, k: &str, v: String| {
+        args.push("--set".into());
+        args.push(format!("{k}={v}"));
+    };
+
+    // Step one: the policy the vehicle starts from.
+    let step_one = scratch.join("step-one");
+    let mut args = common(&setup.sim_mesh);
+    set(&mut args, "episodes", setup.sim_episodes.to_string());
+    set(&mut args, "eyes", "ideal".into());
+    set(&mut args, "state", step_one.display().to_string());
+    set(
+        &mut args,
+        "json",
+        step_one.join("run.json").display().to_string(),
+    );
+    eprintln!(
+        "mesh-bench: vehicle: step one, {} episodes in simulation",
+        setup.sim_episodes
+    );
+    let mut sup = Spawned::start(
+        "supervisor (step one)",
+        &setup.bin_dir.join("supervisor"),
+        &args,
+        &[],
+        scratch.join("step-one.log"),
+    )?;
+    if !sup
+        .wait(Duration::from_secs(600))
+        .is_some_and(|s| s.success())
+    {
+        bail!("step one failed\n{}", sup.tail(30));
+    }
+
+    // Step two on the twin, at the vehicle's pace.
+    let trials = setup.trials();
+    let latency_file = scratch.join("latency.csv");
+    let mut args = common(&setup.vehicle_mesh);
+    for (k, v) in [
+        ("trials", trials.to_string()),
+        ("pacing", format!("--speed={}", setup.speed)),
+        ("initial", step_one.display().to_string()),
+        ("state", scratch.join("step-two").display().to_string()),
+        (
+            "json",
+            scratch.join("step-two/run.json").display().to_string(),
+        ),
+        (
+            "trace",
+            scratch.join("step-two/trace.jsonl").display().to_string(),
+        ),
+        ("latency", format!("--latency={}", latency_file.display())),
+    ] {
+        set(&mut args, k, v);
+    }
+    let expected_s =
+        trials as f64 * (setup.steps_per_trial + 1) as f64 * setup.period_s / setup.speed;
+    eprintln!(
+        "mesh-bench: vehicle: {trials} trials on the twin at {}x real time, about {:.0} s",
+        setup.speed, expected_s
+    );
+    let started = Instant::now();
+    let mut sup = Spawned::start(
+        "supervisor (vehicle)",
+        &setup.bin_dir.join("supervisor"),
+        &args,
+        &[],
+        scratch.join("vehicle.log"),
+    )?;
+    let sup_pid = sup.pid();
+    let limit = Duration::from_secs_f64(expected_s * 1.5 + 120.0);
+    let period_ns = setup.period_s / setup.speed * 1e9;
+    let t0 = now_ns();
+    let mut ticks = Vec::new();
+    let mut last_progress = Instant::now();
+    while sup.exited().is_none() {
+        let mut pids = procfs::children(sup_pid);
+        pids.push(sup_pid);
+        let t_ns = now_ns();
+        ticks.push(Tick {
+            t_ns,
+            // Control periods so far: the clock paces the loop, so CPU per period is CPU per step.
+            seq: ((t_ns - t0) as f64 / period_ns) as u64,
+            procs: pids.into_iter().filter_map(procfs::sample).collect(),
+            busy_ns: procfs::machine_busy_ns(),
+            own_ns: procfs::own_cpu_ns(),
+        });
+        if started.elapsed() > limit {
+            bail!(
+                "the vehicle run took longer than {limit:?}\n{}",
+                sup.tail(30)
+            );
+        }
+        if last_progress.elapsed() >= PROGRESS {
+            last_progress = Instant::now();
+            eprintln!(
+                "mesh-bench: vehicle: {:.0} s of about {:.0} s",
+                started.elapsed().as_secs_f64(),
+                expected_s
+            );
+        }
+        // The supervisor's exit has nothing to block on here; readings are due every TICK anyway.
+        if sup.wait(TICK).is_some() {
+            break;
+        }
+    }
+    let status = sup.exited();
+    let wall_s = started.elapsed().as_secs_f64();
+    if !status.is_some_and(|s| s.success()) {
+        bail!("the vehicle mesh failed ({status:?})\n{}", sup.tail(40));
+    }
+    let text = std::fs::read_to_string(&latency_file)
+        .with_context(|| format!("reading {}", latency_file.display()))?;
+    let latencies = vehicle_twin::latency::read_latencies(&text)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", latency_file.display()))?;
+    // The steady window: every service up, from 10 s in (start-up and the first trial's set-up out),
+    // to the last reading with every process still there (they stop one by one).
+    let skip = (10.0e9 / period_ns).ceil() as u64;
+    let everyone = ticks.iter().map(|t| t.procs.len()).max().unwrap_or(0);
+    let all_up = |t: &&Tick| t.procs.len() >= everyone;
+    let a = ticks
+        .iter()
+        .position(|t| t.seq > skip && all_up(&t))
+        .or_else(|| ticks.iter().position(|t| all_up(&t)))
+        .unwrap_or(0);
+    let b = ticks.iter().rposition(|t| all_up(&t)).unwrap_or(a);
+    let (processes, other_cores) = if b > a {
+        (
+            usage(&ticks, (a, b)),
+            crate::runs::other_cores(&ticks, (a, b)),
+        )
+    } else {
+        (Vec::new(), f64::NAN)
+    };
+    let restarts = sup.log().matches("restarting").count();
+    Ok(VehicleRun {
+        speed: setup.speed,
+        trials,
+        wall_s,
+        latency: Summary::of(&latencies),
+        processes,
+        other_cores,
+        restarts,
+        leftovers: ns.leftovers().len(),
+    })
+}
+
+impl VehicleRun {
+    /// The report as Markdown.
+    pub fn markdown(&self, target_steps: u64) -> String {
+        let mut md = String::new();
+        let us = |ns: u64| ns as f64 / 1e3;
+        let _ = writeln!(
+            md,
+            "### Vehicle endpoint: camera-to-thruster latency at {}x real time\n",
+            self.speed
+        );
+        let _ = writeln!(
+            md,
+            "{} trials of step two on the twin (learning online from the step-one policy), {:.0} s; {} frames timed{}; \
+             other load {:.2} cores; restarts {}; shared-memory files left {}.\n",
+            self.trials,
+            self.wall_s,
+            self.latency.n,
+            if (self.latency.n as u64) < target_steps {
+                format!(" (fewer than the {target_steps} asked: trials ended early)")
+            } else {
+                String::new()
+            },
+            self.other_cores,
+            self.restarts,
+            self.leftovers
+        );
+        let _ = writeln!(
+            md,
+            "| camera-to-thruster latency | p50 | p99 | max | mean |\n|---|---:|---:|---:|---:|"
+        );
+        let _ = writeln!(
+            md,
+            "| twin frame published → setpoints at the twin's thrusters (target p99 < 2 ms) | {:.0} µs | {:.0} µs | {:.0} µs | {:.0} µs |\n",
+            us(self.latency.p50),
+            us(self.latency.p99),
+            us(self.latency.max),
+            self.latency.mean / 1e3
+        );
+        let _ = writeln!(
+            md,
+            "| process | CPU per step (µs) | CPU in the run (ms) | RSS (MiB) | peak RSS (MiB) |\n|---|---:|---:|---:|---:|"
+        );
+        for p in &self.processes {
+            let _ = writeln!(
+                md,
+                "| {} | {:.0} | {:.0} | {:.1} | {:.1} |",
+                p.name, p.cpu_us_per_step, p.cpu_ms, p.rss_mib, p.hwm_mib
+            );
+        }
+        md
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trials_cover_the_steps_asked_with_dropped_frames() {
+        let setup = VehicleSetup {
+            bin_dir: PathBuf::new(),
+            config_dir: PathBuf::new(),
+            sim_mesh: PathBuf::new(),
+            vehicle_mesh: PathBuf::new(),
+            steps: 10_000,
+            speed: 1.0,
+            seed: 1,
+            sim_episodes: 100,
+            steps_per_trial: 450,
+            drop_probability: 0.03,
+            period_s: 0.2,
+        };
+        let trials = setup.trials();
+        // 451 frames a trial, 3% dropped: 437.5 answered frames a trial at most.
+        assert!(trials as f64 * 437.5 >= 10_000.0, "{trials}");
+        assert!(trials <= 25, "{trials}");
+    }
+}
