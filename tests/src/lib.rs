@@ -2,21 +2,12 @@
 //! `supervisor`) in a test's own iceoryx2 namespace and reads back what it recorded.
 
 use messages::{CableObservationMsg, Endpoint, topics};
-use serde::Deserialize;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 use testkit::{Namespace, Process};
 
 /// What the monitor recorded of a run (`scripts/sim-mesh --json`).
-#[derive(Clone, Debug, PartialEq, Deserialize)]
-pub struct RunRecord {
-    pub episodes: usize,
-    pub yaw: Vec<f64>,
-    pub sway: Vec<f64>,
-    pub steps: u64,
-    pub wall_s: f64,
-    pub lost: Vec<bool>,
-}
+pub use monitor::RunRecord;
 
 /// An observation seen by the test while the mesh ran.
 #[derive(Clone, Copy, Debug)]

@@ -26,6 +26,26 @@ pub struct RunRecord {
     pub steps: u64,
     pub wall_s: f64,
     pub lost: Vec<bool>,
+    /// Each episode's transitions (episodes differ in length: a lost cable ends one early, a twin
+    /// trial is 90 s against a simulated episode's 40 s); compare returns per step across them.
+    #[serde(default)]
+    pub episode_steps: Vec<u32>,
+}
+
+impl RunRecord {
+    /// The mean return per step of episodes `range` (yaw, sway); `None` if they have no steps.
+    pub fn per_step(&self, range: std::ops::Range<usize>) -> Option<(f64, f64)> {
+        let steps: u64 = self
+            .episode_steps
+            .get(range.clone())?
+            .iter()
+            .map(|&s| s as u64)
+            .sum();
+        (steps > 0).then(|| {
+            let sum = |v: &[f64]| v[range.clone()].iter().sum::<f64>() / steps as f64;
+            (sum(&self.yaw), sum(&self.sway))
+        })
+    }
 }
 
 /// One observation of a trace (the state-trace figures: Theta and x_g over a trial).
@@ -108,6 +128,7 @@ impl Episodes {
             steps: done.iter().map(|d| d.steps as u64).sum(),
             wall_s,
             lost: done.iter().map(|d| d.lost).collect(),
+            episode_steps: done.iter().map(|d| d.steps).collect(),
         }
     }
 }
@@ -141,5 +162,9 @@ mod tests {
         assert_eq!(rec.yaw, vec![-1.0, -2.0]);
         assert_eq!(rec.sway, vec![-0.5, -0.3]);
         assert_eq!((rec.episodes, rec.steps), (2, 20));
+        assert_eq!(rec.episode_steps, vec![10, 10]);
+        let (yaw, sway) = rec.per_step(0..2).unwrap();
+        assert!((yaw - -3.0 / 20.0).abs() < 1e-12 && (sway - -0.8 / 20.0).abs() < 1e-12);
+        assert_eq!(rec.per_step(1..3), None, "out of range");
     }
 }

@@ -37,6 +37,12 @@ fn main() -> ExitCode {
             (Dof::Sway, rt.inbox(&topics::SWAY_LEARNING)?),
             (Dof::Yaw, rt.inbox(&topics::YAW_LEARNING)?),
         ];
+        for path in args.json.iter().chain(&args.trace) {
+            if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("creating the directory {}", dir.display()))?;
+            }
+        }
         let (trace_in, mut trace_out) = match &args.trace {
             Some(path) => (
                 Some(rt.inbox(&topics::CABLE_OBSERVATION)?),
@@ -90,8 +96,10 @@ fn main() -> ExitCode {
         );
         if let Some(path) = &args.json {
             let tmp = path.with_extension("json.tmp");
-            std::fs::write(&tmp, serde_json::to_string(&record)?)?;
-            std::fs::rename(&tmp, path)?;
+            std::fs::write(&tmp, serde_json::to_string(&record)?)
+                .with_context(|| format!("writing {}", tmp.display()))?;
+            std::fs::rename(&tmp, path)
+                .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
             tracing::info!("wrote {}", path.display());
         }
         Ok(())

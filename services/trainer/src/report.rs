@@ -4,6 +4,8 @@
 //! ```text
 //! DIR/fig5/fig5.json                 step one's learning curves over 100 runs (trainer fig5)
 //! DIR/step-one/run.json, *.ckpt      step one through the mesh: per-episode returns, the policies
+//! DIR/eval-sim/run.json              the simulation policy on the twin with its reality gap off
+//!                                    (the simulation from the vehicle's starts), not learning
 //! DIR/eval/run.json, trace.jsonl     the simulation policy on the vehicle (twin), not learning
 //! DIR/step-two/run.json, trace.jsonl, *.ckpt   online learning on the vehicle: per trial
 //! ```
@@ -28,6 +30,9 @@ pub struct Summary {
     pub vehicle: Returns,
     /// The simulation policy on the vehicle before learning there (Figs. 8, 9).
     pub vehicle_before_learning: Returns,
+    /// The simulation policy from the vehicle's starts with the reality gap off, when it was run.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sim_from_vehicle_starts: Option<Returns>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -207,18 +212,49 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
         md,
         "## Figs. 8 and 9: the simulation policy on the vehicle\n"
     )?;
+    let sim_tail = sim.episodes.saturating_sub(10)..sim.episodes;
+    let sim_per_step = sim.per_step(sim_tail.clone());
+    let eval_per_step = eval.per_step(0..eval.episodes);
+    let per_step = |v: Option<f64>| v.map_or("–".to_owned(), |v| format!("{v:.5}"));
+    let eval_sim_json = dir.join("eval-sim/run.json");
+    let eval_sim: Option<RunRecord> = if eval_sim_json.exists() {
+        Some(read_json(&eval_sim_json)?)
+    } else {
+        None
+    };
     writeln!(
         md,
-        "Mean return per attempt: yaw {:.3}, sway {:.4} (in simulation, the last {} episodes of step one: yaw {:.3}, \
-         sway {:.4}); cable lost in {} of {} attempts.\n\n![Figs. 8 and 9](twin-sim-policy.png)\n",
+        "Mean return per attempt: yaw {:.3}, sway {:.4}; cable lost in {} of {} attempts.\n",
         mean(&eval.yaw),
         mean(&eval.sway),
-        sim.episodes.min(10),
-        mean(&sim.yaw[sim.yaw.len().saturating_sub(10)..]),
-        mean(&sim.sway[sim.sway.len().saturating_sub(10)..]),
         eval.lost.iter().filter(|l| **l).count(),
-        eval.episodes
+        eval.episodes,
     )?;
+    match &eval_sim {
+        Some(es) => writeln!(
+            md,
+            "The same policy from the same starts with the reality gap off (the twin as the identified model with \
+             the simulator's images): yaw {:.3}, sway {:.4} per attempt. Per step, vehicle against simulation: \
+             yaw {} against {}, sway {} against {}.\n",
+            mean(&es.yaw),
+            mean(&es.sway),
+            per_step(eval_per_step.map(|p| p.0)),
+            per_step(es.per_step(0..es.episodes).map(|p| p.0)),
+            per_step(eval_per_step.map(|p| p.1)),
+            per_step(es.per_step(0..es.episodes).map(|p| p.1)),
+        )?,
+        None => writeln!(
+            md,
+            "Per step, on the vehicle against the last {} episodes of step one in simulation (other starts): yaw {} \
+             against {}, sway {} against {}.\n",
+            sim_tail.len(),
+            per_step(eval_per_step.map(|p| p.0)),
+            per_step(sim_per_step.map(|p| p.0)),
+            per_step(eval_per_step.map(|p| p.1)),
+            per_step(sim_per_step.map(|p| p.1)),
+        )?,
+    }
+    writeln!(md, "![Figs. 8 and 9](twin-sim-policy.png)\n")?;
 
     // Figs. 10, 11: improvement over trials.
     let trial_trace = read_trace(&dir.join("step-two/trace.jsonl"))?;
@@ -305,6 +341,7 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
         sim: (&sim).into(),
         vehicle: (&vehicle).into(),
         vehicle_before_learning: (&eval).into(),
+        sim_from_vehicle_starts: eval_sim.as_ref().map(Into::into),
     };
     write_json(&dir.join("summary.json"), &summary).with_context(|| "writing summary.json")?;
     Ok(path)

@@ -393,6 +393,18 @@ mod tests {
     }
 
     #[test]
+    fn the_ideal_twin_file_is_the_gap_off_with_the_simulators_images() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        let t: TwinParams = crate::load(&dir.join("twin-ideal.toml")).unwrap();
+        let scenario: crate::Scenario = crate::load(&dir.join("scenario.toml")).unwrap();
+        let want = TwinParams {
+            render: scenario.render,
+            ..TwinParams::ideal()
+        };
+        assert_eq!(t, want);
+    }
+
+    #[test]
     fn defaults_are_valid_and_harsher_than_the_simulators_images() {
         TwinParams::default().validate("").unwrap();
         TwinParams::ideal().validate("").unwrap();
