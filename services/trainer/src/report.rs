@@ -77,6 +77,27 @@ fn read_trace(path: &Path) -> Result<BTreeMap<u32, Vec<TracePoint>>> {
     Ok(by_episode)
 }
 
+/// For each trial of `trials`, the attempt of `attempts` that started from the same pose (the same
+/// first observation, to 0.01 in x_g and in Theta), if any: the twin's trials cycle through a few
+/// start poses, so an attempt of the simulation policy and a learning trial can start alike.
+pub fn same_starts(
+    trials: &BTreeMap<u32, Vec<TracePoint>>,
+    attempts: &BTreeMap<u32, Vec<TracePoint>>,
+    n_trials: usize,
+) -> Vec<Option<usize>> {
+    let start = |points: &Vec<TracePoint>| points.first().map(|p| (p.x_g, p.theta));
+    (0..n_trials as u32)
+        .map(|t| {
+            let (x, th) = trials.get(&t).and_then(start)?;
+            attempts
+                .iter()
+                .filter_map(|(e, p)| start(p).map(|s| (*e as usize, s)))
+                .find(|(_, (ax, ath))| (ax - x).abs() < 0.01 && (ath - th).abs() < 0.01)
+                .map(|(e, _)| e)
+        })
+        .collect()
+}
+
 fn gains(path: &Path) -> Result<Vec<(Dof, [f64; 2])>> {
     let ckpt = Checkpoint::load(path)?;
     Ok(Dof::ALL
@@ -267,6 +288,7 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
         .collect();
     traces("learning on the vehicle", ("Fig. 10", "Fig. 11"), &eps)
         .save_png(&out.join("step-two-traces.png"))?;
+    let starts = same_starts(&trial_trace, &eval_trace, vehicle.episodes);
     let per_trial = |dof: Dof| {
         let v = if dof == Dof::Yaw {
             &vehicle.yaw
@@ -279,15 +301,31 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
             "trial",
             "total reward",
         );
-        c.series = vec![Series::new("online learning", x, v.clone())];
-        c.ref_lines = vec![plot::RefLine::new(
-            "simulation policy, not learning",
-            mean(if dof == Dof::Yaw {
-                &eval.yaw
-            } else {
-                &eval.sway
-            }),
-        )];
+        let before = if dof == Dof::Yaw {
+            &eval.yaw
+        } else {
+            &eval.sway
+        };
+        c.series = vec![Series::new("online learning", x.clone(), v.clone())];
+        // Returns depend most on where a trial starts: beside each trial, the simulation policy's
+        // attempt from the same start; without one, its mean.
+        let matched: Vec<(f64, f64)> = x
+            .iter()
+            .zip(&starts)
+            .filter_map(|(t, m)| m.and_then(|e| before.get(e)).map(|r| (*t, *r)))
+            .collect();
+        if matched.len() == v.len() {
+            c.series.push(Series::new(
+                "simulation policy from the same start, not learning",
+                matched.iter().map(|m| m.0).collect(),
+                matched.iter().map(|m| m.1).collect(),
+            ));
+        } else {
+            c.ref_lines = vec![plot::RefLine::new(
+                "simulation policy, not learning (mean)",
+                mean(before),
+            )];
+        }
         Panel::Lines(c)
     };
     Figure::new(vec![per_trial(Dof::Yaw), per_trial(Dof::Sway)], 2)
@@ -321,13 +359,21 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
     writeln!(md, "## Returns per trial on the vehicle\n")?;
     writeln!(
         md,
-        "| trial | steps | cable lost | yaw return | sway return |\n|---:|---:|:---:|---:|---:|"
+        "| trial | steps | cable lost | yaw return | sway return | simulation policy from the same start: yaw | sway |\n\
+         |---:|---:|:---:|---:|---:|---:|---:|"
     )?;
     for t in 0..vehicle.episodes {
         let steps = trial_trace.get(&(t as u32)).map_or(0, |p| p.len());
+        let (same_yaw, same_sway) = match starts.get(t).copied().flatten() {
+            Some(e) => (
+                format!("{:.3}", eval.yaw[e]),
+                format!("{:.4}", eval.sway[e]),
+            ),
+            None => ("–".to_owned(), "–".to_owned()),
+        };
         writeln!(
             md,
-            "| {} | {} | {} | {:.3} | {:.4} |",
+            "| {} | {} | {} | {:.3} | {:.4} | {same_yaw} | {same_sway} |",
             t + 1,
             steps,
             if vehicle.lost[t] { "yes" } else { "" },
@@ -345,4 +391,38 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
     };
     write_json(&dir.join("summary.json"), &summary).with_context(|| "writing summary.json")?;
     Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn trace(starts: &[(f64, f64)]) -> BTreeMap<u32, Vec<TracePoint>> {
+        starts
+            .iter()
+            .enumerate()
+            .map(|(e, &(x_g, theta))| {
+                let p = |step: u32| TracePoint {
+                    episode: e as u32,
+                    step,
+                    time_s: step as f64 * 0.2,
+                    found: true,
+                    x_g: x_g + step as f64,
+                    theta,
+                };
+                (e as u32, vec![p(0), p(1)])
+            })
+            .collect()
+    }
+
+    #[test]
+    fn trials_are_matched_to_the_attempt_from_the_same_start() {
+        let attempts = trace(&[(0.1, 0.3), (-0.2, -0.5)]);
+        // Cycling through the two starts, a perception error away; the last start is new.
+        let trials = trace(&[(0.1004, 0.2999), (-0.2, -0.501), (0.1, 0.3), (0.3, 0.3)]);
+        assert_eq!(
+            same_starts(&trials, &attempts, 5),
+            vec![Some(0), Some(1), Some(0), None, None]
+        );
+    }
 }
