@@ -35,19 +35,6 @@ fn step_one(dir: &Path) {
         .unwrap();
 }
 
-/// The supervisor's children: (pid, program name).
-fn children(pid: i32) -> Vec<(i32, String)> {
-    std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children"))
-        .unwrap_or_default()
-        .split_whitespace()
-        .filter_map(|p| p.parse().ok())
-        .map(|p: i32| {
-            let comm = std::fs::read_to_string(format!("/proc/{p}/comm")).unwrap_or_default();
-            (p, comm.trim().to_owned())
-        })
-        .collect()
-}
-
 /// What a "checkpoint saved" or "checkpoint loaded" log line says: K and the counters.
 #[derive(Debug, PartialEq)]
 struct Logged {
@@ -126,7 +113,7 @@ fn a_behaviour_killed_mid_learning_on_the_vehicle_resumes_from_its_last_checkpoi
             s.stamp.episode >= 2 && s.stamp.step >= 200
         })
         .unwrap_or_else(|| panic!("the mesh does not run:\n{}", supervisor.log()));
-    let sway = children(supervisor.pid())
+    let sway = testkit::children(supervisor.pid())
         .into_iter()
         .find(|(_, name)| name == "sway-behaviour")
         .expect("sway-behaviour is one of the supervisor's children");
@@ -138,7 +125,7 @@ fn a_behaviour_killed_mid_learning_on_the_vehicle_resumes_from_its_last_checkpoi
     probe
         .wait_for(&reports, T, |s| s.stamp.episode >= before.stamp.episode + 2)
         .unwrap_or_else(|| panic!("the loop did not resume:\n{}", supervisor.log()));
-    let restarted = children(supervisor.pid())
+    let restarted = testkit::children(supervisor.pid())
         .into_iter()
         .find(|(_, name)| name == "sway-behaviour")
         .expect("sway-behaviour was restarted");

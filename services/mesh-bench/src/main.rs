@@ -165,14 +165,29 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
     };
     let run = mesh_bench::vehicle::run(&setup)?;
     let markdown = run.markdown(args.steps);
+    report(
+        &run,
+        &markdown,
+        args.json.as_deref(),
+        args.markdown.as_deref(),
+    )
+}
+
+/// Prints the Markdown report and writes it and the figures (JSON) where asked.
+fn report(
+    figures: &impl serde::Serialize,
+    markdown: &str,
+    json: Option<&std::path::Path>,
+    md: Option<&std::path::Path>,
+) -> Result<()> {
     println!("{markdown}");
-    if let Some(path) = &args.json {
-        std::fs::write(path, serde_json::to_string_pretty(&run)?)
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(figures)?)
             .with_context(|| format!("writing {}", path.display()))?;
         eprintln!("mesh-bench: wrote {}", path.display());
     }
-    if let Some(path) = &args.markdown {
-        std::fs::write(path, &markdown).with_context(|| format!("writing {}", path.display()))?;
+    if let Some(path) = md {
+        std::fs::write(path, markdown).with_context(|| format!("writing {}", path.display()))?;
         eprintln!("mesh-bench: wrote {}", path.display());
     }
     Ok(())
@@ -268,15 +283,10 @@ fn bench(args: &Bench) -> Result<()> {
     }
     results.machine.load_after = load();
     let markdown = results.markdown();
-    println!("{markdown}");
-    if let Some(path) = &args.json {
-        std::fs::write(path, serde_json::to_string_pretty(&results)?)
-            .with_context(|| format!("writing {}", path.display()))?;
-        eprintln!("mesh-bench: wrote {}", path.display());
-    }
-    if let Some(path) = &args.markdown {
-        std::fs::write(path, &markdown).with_context(|| format!("writing {}", path.display()))?;
-        eprintln!("mesh-bench: wrote {}", path.display());
-    }
-    Ok(())
+    report(
+        &results,
+        &markdown,
+        args.json.as_deref(),
+        args.markdown.as_deref(),
+    )
 }

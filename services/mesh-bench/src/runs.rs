@@ -55,30 +55,16 @@ impl Namespace {
         self.root.join("bench")
     }
 
-    fn shm_files(&self) -> Vec<String> {
-        std::fs::read_dir("/dev/shm")
-            .map(|d| {
-                d.flatten()
-                    .map(|e| e.file_name().to_string_lossy().into_owned())
-                    .filter(|n| n.starts_with(&self.iox.prefix))
-                    .collect()
-            })
-            .unwrap_or_default()
-    }
-
-    /// Shared-memory files still there once the run's processes are gone, except iceoryx2's one
-    /// 16-byte `global_mgmt` record per prefix, which it keeps by design.
+    /// Shared-memory files still there once the run's processes are gone (see
+    /// [`runtime::shm_leftovers`]).
     pub fn leftovers(&self) -> Vec<String> {
-        self.shm_files()
-            .into_iter()
-            .filter(|n| !n.ends_with(".global_mgmt"))
-            .collect()
+        runtime::shm_leftovers(&self.iox.prefix)
     }
 }
 
 impl Drop for Namespace {
     fn drop(&mut self) {
-        for f in self.shm_files() {
+        for f in runtime::shm_files(&self.iox.prefix) {
             let _ = std::fs::remove_file(Path::new("/dev/shm").join(f));
         }
         let _ = std::fs::remove_dir_all(&self.root);
@@ -412,34 +398,52 @@ pub struct MeshRun {
     pub leftovers: usize,
 }
 
+/// The supervisor's command line for `mesh` in namespace `ns`, with `--set KEY=VALUE` for each of `sets`.
+pub fn supervisor_args(
+    mesh: &Path,
+    config_dir: &Path,
+    seed: u64,
+    ns: &Namespace,
+    sets: &[(&str, String)],
+) -> Vec<String> {
+    let mut args: Vec<String> = vec![
+        "--mesh".into(),
+        mesh.display().to_string(),
+        "--config".into(),
+        config_dir.display().to_string(),
+        "--seed".into(),
+        seed.to_string(),
+        "--iox-prefix".into(),
+        ns.iox.prefix.clone(),
+        "--iox-root".into(),
+        ns.iox.root.clone(),
+    ];
+    for (k, v) in sets {
+        args.push("--set".into());
+        args.push(format!("{k}={v}"));
+    }
+    args
+}
+
 /// Runs the mesh once through the supervisor, with images.
 pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
     let ns = Namespace::new(if with_probe { 'p' } else { 'm' })?;
     let scratch = ns.scratch();
     let node = probe::node(&ns.iox, "mesh-bench")?;
     let watcher = Watcher::open(&node, with_probe)?;
-    let set = |k: &str, v: String| ["--set".to_owned(), format!("{k}={v}")];
-    let mut args: Vec<String> = vec![
-        "--mesh".into(),
-        setup.mesh_file.display().to_string(),
-        "--config".into(),
-        setup.config_dir.display().to_string(),
-        "--seed".into(),
-        setup.seed.to_string(),
-        "--iox-prefix".into(),
-        ns.iox.prefix.clone(),
-        "--iox-root".into(),
-        ns.iox.root.clone(),
-    ];
-    for (k, v) in [
-        ("episodes", setup.episodes.to_string()),
-        ("eyes", "images".to_owned()),
-        ("json", scratch.join("run.json").display().to_string()),
-        // A fresh state directory: the behaviours start from scratch, never from an earlier run.
-        ("state", scratch.join("state").display().to_string()),
-    ] {
-        args.extend(set(k, v));
-    }
+    let args = supervisor_args(
+        &setup.mesh_file,
+        &setup.config_dir,
+        setup.seed,
+        &ns,
+        &[
+            ("episodes", setup.episodes.to_string()),
+            ("eyes", "images".to_owned()),
+            ("json", scratch.join("run.json").display().to_string()),
+            // A fresh state directory: the behaviours start from scratch, never from an earlier run.
+            ("state", scratch.join("state").display().to_string()),
+        ],
+    );
     let started = Instant::now();
     let mut sup = Spawned::start(
         "supervisor",

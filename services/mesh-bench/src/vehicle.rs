@@ -9,7 +9,7 @@
 //! included. Meanwhile the bench reads each process in `/proc` every [`TICK`].
 
 use crate::procfs;
-use crate::runs::{Namespace, ProcessUse, Spawned, Tick, usage};
+use crate::runs::{Namespace, ProcessUse, Spawned, Tick, supervisor_args, usage};
 use crate::stats::{Summary, now_ns};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
@@ -72,35 +72,19 @@ pub struct VehicleRun {
 pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     let ns = Namespace::new('v')?;
     let scratch = ns.scratch();
-    let common = |mesh: &PathBuf| -> Vec<String> {
-        vec![
-            "--mesh".into(),
-            mesh.display().to_string(),
-            "--config".into(),
-            setup.config_dir.display().to_string(),
-            "--seed".into(),
-            setup.seed.to_string(),
-            "--iox-prefix".into(),
-            ns.iox.prefix.clone(),
-            "--iox-root".into(),
-            ns.iox.root.clone(),
-        ]
-    };
-    let set = |args: &mut Vec<String>, k: &str, v: String| {
-        args.push("--set".into());
-        args.push(format!("{k}={v}"));
-    };
-
     // Step one: the policy the vehicle starts from.
     let step_one = scratch.join("step-one");
-    let mut args = common(&setup.sim_mesh);
-    set(&mut args, "episodes", setup.sim_episodes.to_string());
-    set(&mut args, "eyes", "ideal".into());
-    set(&mut args, "state", step_one.display().to_string());
-    set(
-        &mut args,
-        "json",
-        step_one.join("run.json").display().to_string(),
+    let args = supervisor_args(
+        &setup.sim_mesh,
+        &setup.config_dir,
+        setup.seed,
+        &ns,
+        &[
+            ("episodes", setup.sim_episodes.to_string()),
+            ("eyes", "ideal".into()),
+            ("state", step_one.display().to_string()),
+            ("json", step_one.join("run.json").display().to_string()),
+        ],
     );
     eprintln!(
         "mesh-bench: vehicle: step one, {} episodes in simulation",
@@ -123,24 +107,27 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     // Step two on the twin, at the vehicle's pace.
     let trials = setup.trials();
     let latency_file = scratch.join("latency.csv");
-    let mut args = common(&setup.vehicle_mesh);
-    for (k, v) in [
-        ("trials", trials.to_string()),
-        ("pacing", format!("--speed={}", setup.speed)),
-        ("initial", step_one.display().to_string()),
-        ("state", scratch.join("step-two").display().to_string()),
-        (
-            "json",
-            scratch.join("step-two/run.json").display().to_string(),
-        ),
-        (
-            "trace",
-            scratch.join("step-two/trace.jsonl").display().to_string(),
-        ),
-        ("latency", format!("--latency={}", latency_file.display())),
-    ] {
-        set(&mut args, k, v);
-    }
+    let args = supervisor_args(
+        &setup.vehicle_mesh,
+        &setup.config_dir,
+        setup.seed,
+        &ns,
+        &[
+            ("trials", trials.to_string()),
+            ("pacing", format!("--speed={}", setup.speed)),
+            ("initial", step_one.display().to_string()),
+            ("state", scratch.join("step-two").display().to_string()),
+            (
+                "json",
+                scratch.join("step-two/run.json").display().to_string(),
+            ),
+            (
+                "trace",
+                scratch.join("step-two/trace.jsonl").display().to_string(),
+            ),
+            ("latency", format!("--latency={}", latency_file.display())),
+        ],
+    );
     let expected_s =
         trials as f64 * (setup.steps_per_trial + 1) as f64 * setup.period_s / setup.speed;
     eprintln!(

@@ -18,19 +18,6 @@ fn restarting_mesh(dir: &Path) -> std::path::PathBuf {
     path
 }
 
-/// The supervisor's children: (pid, program name).
-fn children(pid: i32) -> Vec<(i32, String)> {
-    let list =
-        std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children")).unwrap_or_default();
-    list.split_whitespace()
-        .filter_map(|p| p.parse().ok())
-        .map(|p: i32| {
-            let comm = std::fs::read_to_string(format!("/proc/{p}/comm")).unwrap_or_default();
-            (p, comm.trim().to_owned())
-        })
-        .collect()
-}
-
 fn alive(pid: i32) -> bool {
     // A zombie still has a /proc entry; its state is Z.
     std::fs::read_to_string(format!("/proc/{pid}/stat"))
@@ -72,7 +59,7 @@ fn a_service_killed_with_sigkill_is_restarted_and_the_loop_resumes_then_sigterm_
     let before = probe
         .wait_for(&setpoints, T, |s| s.stamp.seq > 20)
         .expect("the mesh runs");
-    let perception = children(supervisor.pid())
+    let perception = testkit::children(supervisor.pid())
         .into_iter()
         .find(|(_, name)| name == "perception")
         .expect("perception is one of the supervisor's children");
@@ -84,7 +71,7 @@ fn a_service_killed_with_sigkill_is_restarted_and_the_loop_resumes_then_sigterm_
     let after = probe
         .wait_for(&setpoints, T, |s| s.stamp.seq > before.stamp.seq + 50)
         .unwrap_or_else(|| panic!("the loop did not resume:\n{}", supervisor.log()));
-    let new_perception = children(supervisor.pid())
+    let new_perception = testkit::children(supervisor.pid())
         .into_iter()
         .find(|(_, name)| name == "perception")
         .expect("perception was restarted");
@@ -99,7 +86,7 @@ fn a_service_killed_with_sigkill_is_restarted_and_the_loop_resumes_then_sigterm_
         after.stamp.seq, before.stamp.seq
     );
 
-    let pids: Vec<i32> = children(supervisor.pid())
+    let pids: Vec<i32> = testkit::children(supervisor.pid())
         .into_iter()
         .map(|(p, _)| p)
         .collect();

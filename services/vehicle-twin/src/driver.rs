@@ -87,28 +87,8 @@ impl Budget {
     }
 }
 
-/// The lockstep protocol's time limits.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Timing {
-    pub resend: Duration,
-    pub deadline: Duration,
-    pub waiting_note: Duration,
-}
-
-impl Timing {
-    pub fn new(resend: Duration, deadline: Duration) -> Self {
-        Timing {
-            resend,
-            deadline,
-            waiting_note: Duration::from_secs(5),
-        }
-    }
-
-    /// How long the shell may block without input: half the shorter limit.
-    pub fn tick(&self) -> Duration {
-        (self.resend.min(self.deadline) / 2).max(Duration::from_millis(1))
-    }
-}
+/// The lockstep protocol's time limits: the simulator's, the same protocol with the twin as the plant.
+pub use simulator::lockstep::Timing;
 
 /// Where the lockstep stands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

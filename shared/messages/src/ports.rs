@@ -82,23 +82,7 @@ fn open_topic<P: Payload>(
 
 impl<P: Payload> Outbox<P> {
     pub fn open(node: &Node<Ipc>, endpoint: Endpoint, topic: &Topic<P>) -> Result<Self, PortError> {
-        let service = topic.service_name(endpoint);
-        let q = &topic.qos;
-        let factory = open_topic::<P>(node, &service, q)?;
-        let publisher = factory
-            .publisher_builder()
-            .create()
-            .map_err(|e| fail(&service, "cannot create a publisher")(&e))?;
-        let notifier = open_event(node, &service, q)?
-            .notifier_builder()
-            .create()
-            .map_err(|e| fail(&service, "cannot create a notifier")(&e))?;
-        Ok(Outbox {
-            service,
-            factory,
-            publisher,
-            notifier,
-        })
+        Self::open_service(node, &topic.service_name(endpoint), topic)
     }
 
     /// Opens a topic by its full service name (the hardware topics of [`crate::topics::hardware`],
@@ -158,23 +142,7 @@ pub struct Inbox<P: Payload> {
 
 impl<P: Payload> Inbox<P> {
     pub fn open(node: &Node<Ipc>, endpoint: Endpoint, topic: &Topic<P>) -> Result<Self, PortError> {
-        let service = topic.service_name(endpoint);
-        let q = &topic.qos;
-        let factory = open_topic::<P>(node, &service, q)?;
-        let subscriber = factory
-            .subscriber_builder()
-            .create()
-            .map_err(|e| fail(&service, "cannot create a subscriber")(&e))?;
-        let listener = open_event(node, &service, q)?
-            .listener_builder()
-            .create()
-            .map_err(|e| fail(&service, "cannot create a listener")(&e))?;
-        Ok(Inbox {
-            service,
-            factory,
-            subscriber,
-            listener,
-        })
+        Self::open_service(node, &topic.service_name(endpoint), topic)
     }
 
     /// Opens a topic by its full service name (see [`Outbox::open_service`]).
@@ -234,26 +202,6 @@ impl<P: Payload> Inbox<P> {
     }
 }
 
-fn open_frames(node: &Node<Ipc>, endpoint: Endpoint) -> Result<(String, FrameFactory), PortError> {
-    let topic = crate::topics::CAMERA_FRAME;
-    let service = topic.service_name(endpoint);
-    let q = &topic.qos;
-    let factory = node
-        .service_builder(&service_name(&service)?)
-        .publish_subscribe::<[u8]>()
-        .user_header::<CameraFrameHeader>()
-        .history_size(q.history)
-        .subscriber_max_buffer_size(q.buffer)
-        .enable_safe_overflow(true)
-        .max_publishers(q.max_publishers)
-        .max_subscribers(q.max_subscribers)
-        .max_nodes(q.max_nodes)
-        .open_or_create()
-        .map_err(|e| fail(&service, "cannot open the topic")(&e))?;
-    Ok((service, factory))
-}
-
-/// Opens a frame topic (an image slice with a [`CameraFrameHeader`]) by its full service name.
 fn open_frames_service(
     node: &Node<Ipc>,
     service: &str,
@@ -290,23 +238,8 @@ impl FrameOutbox {
 
     /// A publisher of frames of at most `max_len` bytes.
     pub fn open(node: &Node<Ipc>, endpoint: Endpoint, max_len: usize) -> Result<Self, PortError> {
-        let (service, factory) = open_frames(node, endpoint)?;
-        let publisher = factory
-            .publisher_builder()
-            .initial_max_slice_len(max_len.max(1))
-            .create()
-            .map_err(|e| fail(&service, "cannot create a publisher")(&e))?;
-        let notifier = open_event(node, &service, &crate::topics::CAMERA_FRAME.qos)?
-            .notifier_builder()
-            .create()
-            .map_err(|e| fail(&service, "cannot create a notifier")(&e))?;
-        Ok(FrameOutbox {
-            service,
-            factory,
-            publisher,
-            notifier,
-            max_len,
-        })
+        let topic = crate::topics::CAMERA_FRAME;
+        Self::open_service(node, &topic.service_name(endpoint), &topic, max_len)
     }
 
     /// A publisher of frames of at most `max_len` bytes on a frame topic named in full (the hardware
@@ -385,21 +318,8 @@ pub struct FrameInbox {
 
 impl FrameInbox {
     pub fn open(node: &Node<Ipc>, endpoint: Endpoint) -> Result<Self, PortError> {
-        let (service, factory) = open_frames(node, endpoint)?;
-        let subscriber = factory
-            .subscriber_builder()
-            .create()
-            .map_err(|e| fail(&service, "cannot create a subscriber")(&e))?;
-        let listener = open_event(node, &service, &crate::topics::CAMERA_FRAME.qos)?
-            .listener_builder()
-            .create()
-            .map_err(|e| fail(&service, "cannot create a listener")(&e))?;
-        Ok(FrameInbox {
-            service,
-            factory,
-            subscriber,
-            listener,
-        })
+        let topic = crate::topics::CAMERA_FRAME;
+        Self::open_service(node, &topic.service_name(endpoint), &topic)
     }
 
     /// A subscriber of a frame topic named in full (see [`FrameOutbox::open_service`]).

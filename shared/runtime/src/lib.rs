@@ -25,5 +25,6 @@ mod wait;
 
 pub use node::{
     CommonArgs, IoxSettings, Runtime, RuntimeError, init_tracing, remove_dead_nodes, run,
+    shm_files, shm_leftovers,
 };
 pub use wait::{Flow, Stopped, Timer, Wake};

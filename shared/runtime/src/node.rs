@@ -270,3 +270,24 @@ pub fn remove_dead_nodes(iox: &IoxConfig) -> usize {
     }
     removed
 }
+
+/// The shared-memory files of the iceoryx2 namespace `prefix` now in `/dev/shm`.
+pub fn shm_files(prefix: &str) -> Vec<String> {
+    std::fs::read_dir("/dev/shm")
+        .map(|d| {
+            d.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.starts_with(prefix))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// The files of namespace `prefix` that outlive its processes, except iceoryx2's one 16-byte
+/// `global_mgmt` record per prefix, which it keeps by design: after a clean stop, none.
+pub fn shm_leftovers(prefix: &str) -> Vec<String> {
+    shm_files(prefix)
+        .into_iter()
+        .filter(|n| !n.ends_with(".global_mgmt"))
+        .collect()
+}

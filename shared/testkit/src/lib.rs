@@ -100,23 +100,12 @@ impl Namespace {
 
     /// Shared-memory files of this namespace still in /dev/shm.
     pub fn shm_files(&self) -> Vec<String> {
-        std::fs::read_dir("/dev/shm")
-            .map(|d| {
-                d.filter_map(|e| e.ok())
-                    .map(|e| e.file_name().to_string_lossy().into_owned())
-                    .filter(|n| n.starts_with(&self.prefix))
-                    .collect()
-            })
-            .unwrap_or_default()
+        runtime::shm_files(&self.prefix)
     }
 
-    /// Files of this namespace that outlive its processes, except iceoryx2's one 16-byte
-    /// `global_mgmt` record per prefix, which it keeps by design.
+    /// Files of this namespace that outlive its processes (see [`runtime::shm_leftovers`]).
     pub fn leftovers(&self) -> Vec<String> {
-        self.shm_files()
-            .into_iter()
-            .filter(|n| !n.ends_with(".global_mgmt"))
-            .collect()
+        runtime::shm_leftovers(&self.prefix)
     }
 }
 
@@ -326,4 +315,17 @@ impl Probe {
     ) {
         let _ = listener.timed_wait(|_| {}, timeout);
     }
+}
+
+/// The children of process `pid`: (pid, program name), e.g. a supervisor's services.
+pub fn children(pid: i32) -> Vec<(i32, String)> {
+    std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children"))
+        .unwrap_or_default()
+        .split_whitespace()
+        .filter_map(|p| p.parse().ok())
+        .map(|p: i32| {
+            let comm = std::fs::read_to_string(format!("/proc/{p}/comm")).unwrap_or_default();
+            (p, comm.trim().to_owned())
+        })
+        .collect()
 }
