@@ -8,7 +8,7 @@ use learning::{Algorithm, Checkpoint};
 use messages::{Endpoint, topics};
 use std::path::Path;
 use std::time::Duration;
-use testkit::{Namespace, Process};
+use testkit::Namespace;
 use trainer::Eyes;
 use trainer::world::World;
 
@@ -76,35 +76,21 @@ fn a_behaviour_killed_mid_learning_on_the_vehicle_resumes_from_its_last_checkpoi
     let probe = ns.probe(Endpoint::Vehicle);
     let reports = probe.inbox(&topics::learning(Dof::Sway));
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
-    let settings = ns.settings();
-    let mesh = testkit::config_dir().join("vehicle.toml");
-    let set = |k: &str, v: &Path| format!("{k}={}", v.display());
-    let args = [
-        "--mesh".to_owned(),
-        mesh.display().to_string(),
-        "--iox-prefix".into(),
-        settings.prefix,
-        "--iox-root".into(),
-        settings.root,
-        "--seed".into(),
-        "4".into(),
-        "--set".into(),
-        "trials=0".into(),
-        "--set".into(),
-        "pacing=--lockstep".into(),
-        "--set".into(),
-        "eyes=ideal".into(),
-        "--set".into(),
-        set("initial", &initial),
-        "--set".into(),
-        set("state", &state),
-        "--set".into(),
-        set("json", &dir.path().join("run.json")),
-        "--set".into(),
-        set("trace", &dir.path().join("trace.jsonl")),
-    ];
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let mut supervisor = Process::start(&ns, &testkit::binary("supervisor"), &args);
+    let path = |p: &Path| p.display().to_string();
+    let mut supervisor = testkit::supervisor(
+        &ns,
+        &testkit::config_dir().join("vehicle.toml"),
+        4,
+        &[
+            ("trials", "0".into()),
+            ("pacing", "--lockstep".into()),
+            ("eyes", "ideal".into()),
+            ("initial", path(&initial)),
+            ("state", path(&state)),
+            ("json", path(&dir.path().join("run.json"))),
+            ("trace", path(&dir.path().join("trace.jsonl"))),
+        ],
+    );
 
     // Learning on the vehicle: two trials done, then the sway behaviour dies in the middle of the
     // third (far from its end-of-trial save).

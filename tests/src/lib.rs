@@ -4,7 +4,7 @@
 use messages::{CableObservationMsg, Endpoint, topics};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
-use testkit::{Namespace, Process};
+use testkit::Namespace;
 
 /// What the monitor recorded of a run (`scripts/sim-mesh --json`).
 pub use monitor::RunRecord;
@@ -56,31 +56,17 @@ pub fn run_mesh(ns: &Namespace, opts: &MeshOptions) -> MeshRun {
     let json: PathBuf = dir.path().join("run.json");
     let probe = ns.probe(Endpoint::Sim);
     let observations = opts.watch.then(|| probe.inbox(&topics::CABLE_OBSERVATION));
-    let settings = ns.settings();
-    let seed = opts.seed.to_string();
-    let args = [
-        "--mesh".to_owned(),
-        testkit::config_dir()
-            .join("sim-mesh.toml")
-            .display()
-            .to_string(),
-        "--seed".into(),
-        seed,
-        "--iox-prefix".into(),
-        settings.prefix.clone(),
-        "--iox-root".into(),
-        settings.root.clone(),
-        "--set".into(),
-        format!("episodes={}", opts.episodes),
-        "--set".into(),
-        format!("eyes={}", opts.eyes),
-        "--set".into(),
-        format!("json={}", json.display()),
-        "--set".into(),
-        format!("state={}", dir.path().display()),
-    ];
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let mut supervisor = Process::start(ns, &testkit::binary("supervisor"), &args);
+    let mut supervisor = testkit::supervisor(
+        ns,
+        &testkit::config_dir().join("sim-mesh.toml"),
+        opts.seed,
+        &[
+            ("episodes", opts.episodes.to_string()),
+            ("eyes", opts.eyes.to_owned()),
+            ("json", json.display().to_string()),
+            ("state", dir.path().display().to_string()),
+        ],
+    );
     let end = Instant::now() + opts.timeout;
     let mut seen = Vec::new();
     let status = loop {

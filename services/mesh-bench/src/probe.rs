@@ -239,19 +239,8 @@ impl Progress {
     pub fn open(node: &Node<Ipc>, endpoint: Endpoint) -> Result<Progress> {
         let topic = topics::VEHICLE_STATE;
         let name = topic.service_name(endpoint);
-        let q = topic.qos;
-        // The topic's own QoS (from `messages`), in case this opens it first.
-        let factory = node
-            .service_builder(&ServiceName::new(&name).map_err(|e| anyhow!("{name}: {e:?}"))?)
-            .publish_subscribe::<VehicleStateMsg>()
-            .history_size(q.history)
-            .subscriber_max_buffer_size(q.buffer)
-            .enable_safe_overflow(true)
-            .max_publishers(q.max_publishers)
-            .max_subscribers(q.max_subscribers)
-            .max_nodes(q.max_nodes)
-            .open_or_create()
-            .map_err(|e| anyhow!("cannot open {name}: {e:?}"))?;
+        // The topic's own QoS (from `messages`), in case this opens it first; no listener: never woken.
+        let factory = messages::ports::open_topic::<VehicleStateMsg>(node, &name, &topic.qos)?;
         let subscriber = factory
             .subscriber_builder()
             .create()

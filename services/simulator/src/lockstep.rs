@@ -82,6 +82,93 @@ pub enum Phase {
     Finished,
 }
 
+/// What the protocol's clock says is due.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Due {
+    /// Nothing yet.
+    Idle,
+    /// The mesh runs and the current step went unanswered past the deadline: close it without an
+    /// answer.
+    Deadline,
+    /// Publish the current step again; `waiting_for_mesh` is set (to the time waited since the
+    /// start) every [`Timing::waiting_note`] while the mesh has never answered.
+    Resend { waiting_for_mesh: Option<Duration> },
+}
+
+/// The protocol's clock, the same for every plant run in lockstep (the simulator here, the vehicle
+/// twin with `--lockstep`): when to re-send the current step, when its deadline has passed, when to
+/// say the mesh has not answered yet. Plain state fed `now`.
+#[derive(Clone, Copy, Debug)]
+pub struct Deadlines {
+    timing: Timing,
+    phase: Phase,
+    started_at: Instant,
+    /// When the current step was first published, and last (re-)published.
+    first_sent: Instant,
+    last_sent: Instant,
+    last_note: Instant,
+}
+
+impl Deadlines {
+    /// The first step was published at `now`; the mesh has not answered yet.
+    pub fn start(timing: Timing, now: Instant) -> Self {
+        Deadlines {
+            timing,
+            phase: Phase::Connecting,
+            started_at: now,
+            first_sent: now,
+            last_sent: now,
+            last_note: now,
+        }
+    }
+
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    pub fn timing(&self) -> &Timing {
+        &self.timing
+    }
+
+    /// How long the current step has waited for its answer.
+    pub fn waited(&self, now: Instant) -> Duration {
+        now.saturating_duration_since(self.first_sent)
+    }
+
+    /// The next step was published at `now` (the mesh answers, or the deadline closed one).
+    pub fn published(&mut self, now: Instant) {
+        self.phase = Phase::Running;
+        self.first_sent = now;
+        self.last_sent = now;
+    }
+
+    /// Nothing more is published.
+    pub fn finish(&mut self) {
+        self.phase = Phase::Finished;
+    }
+
+    /// Time passed: what is due at `now`.
+    pub fn on_time(&mut self, now: Instant) -> Due {
+        match self.phase {
+            Phase::Finished => Due::Idle,
+            Phase::Running if self.waited(now) >= self.timing.deadline => Due::Deadline,
+            Phase::Connecting | Phase::Running => {
+                if now.saturating_duration_since(self.last_sent) < self.timing.resend {
+                    return Due::Idle;
+                }
+                self.last_sent = now;
+                let waiting_for_mesh = (self.phase == Phase::Connecting
+                    && now.saturating_duration_since(self.last_note) >= self.timing.waiting_note)
+                    .then(|| {
+                        self.last_note = now;
+                        now.saturating_duration_since(self.started_at)
+                    });
+                Due::Resend { waiting_for_mesh }
+            }
+        }
+    }
+}
+
 /// Why a step was integrated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Cause {
@@ -135,17 +222,11 @@ pub enum Reaction {
 /// The simulator in lockstep with the mesh.
 pub struct Lockstep {
     sim: Simulator,
-    timing: Timing,
+    clock: Deadlines,
     /// Episodes to run; 0 runs forever.
     episodes: u32,
     episodes_done: u32,
     current: Published,
-    phase: Phase,
-    started_at: Instant,
-    /// When the current step was first published, and last (re-)published.
-    first_sent: Instant,
-    last_sent: Instant,
-    last_note: Instant,
 }
 
 /// Zero thrust, for a step whose setpoints never came.
@@ -157,15 +238,10 @@ impl Lockstep {
         let step = sim.reset();
         Lockstep {
             sim,
-            timing,
+            clock: Deadlines::start(timing, now),
             episodes,
             episodes_done: 0,
             current: Published { seq: 1, step },
-            phase: Phase::Connecting,
-            started_at: now,
-            first_sent: now,
-            last_sent: now,
-            last_note: now,
         }
     }
 
@@ -175,11 +251,11 @@ impl Lockstep {
     }
 
     pub fn phase(&self) -> Phase {
-        self.phase
+        self.clock.phase()
     }
 
     pub fn timing(&self) -> &Timing {
-        &self.timing
+        self.clock.timing()
     }
 
     /// Episodes ended so far.
@@ -194,7 +270,7 @@ impl Lockstep {
 
     /// Setpoints answering step `seq` arrived at `now`.
     pub fn on_setpoints(&mut self, seq: u64, setpoints: &[f64], now: Instant) -> Reaction {
-        if self.phase == Phase::Finished || seq != self.current.seq {
+        if self.phase() == Phase::Finished || seq != self.current.seq {
             return Reaction::Idle;
         }
         self.advance(setpoints, Cause::Answered, now)
@@ -202,35 +278,19 @@ impl Lockstep {
 
     /// Time passed (the shell calls this on every wake-up): re-send, or step past the deadline.
     pub fn on_time(&mut self, now: Instant) -> Reaction {
-        match self.phase {
-            Phase::Finished => Reaction::Idle,
-            Phase::Running
-                if now.saturating_duration_since(self.first_sent) >= self.timing.deadline =>
-            {
-                self.advance(&ZERO_THRUST, Cause::Deadline, now)
-            }
-            Phase::Connecting | Phase::Running => {
-                if now.saturating_duration_since(self.last_sent) < self.timing.resend {
-                    return Reaction::Idle;
-                }
-                self.last_sent = now;
-                let waiting_for_mesh = (self.phase == Phase::Connecting
-                    && now.saturating_duration_since(self.last_note) >= self.timing.waiting_note)
-                    .then(|| {
-                        self.last_note = now;
-                        now.saturating_duration_since(self.started_at)
-                    });
-                Reaction::Resend {
-                    step: self.current,
-                    waiting_for_mesh,
-                }
-            }
+        match self.clock.on_time(now) {
+            Due::Idle => Reaction::Idle,
+            Due::Deadline => self.advance(&ZERO_THRUST, Cause::Deadline, now),
+            Due::Resend { waiting_for_mesh } => Reaction::Resend {
+                step: self.current,
+                waiting_for_mesh,
+            },
         }
     }
 
     fn advance(&mut self, setpoints: &[f64], cause: Cause, now: Instant) -> Reaction {
         let closed = self.current;
-        let waited = now.saturating_duration_since(self.first_sent);
+        let waited = self.clock.waited(now);
         let ended = closed.step.status.is_terminal().then(|| {
             self.episodes_done += 1;
             EpisodeEnd {
@@ -241,7 +301,7 @@ impl Lockstep {
             }
         });
         if ended.is_some() && self.episodes > 0 && self.episodes_done >= self.episodes {
-            self.phase = Phase::Finished;
+            self.clock.finish();
             return Reaction::Advanced(Advance {
                 closed,
                 cause,
@@ -256,9 +316,7 @@ impl Lockstep {
             seq: closed.seq + 1,
             step,
         };
-        self.phase = Phase::Running;
-        self.first_sent = now;
-        self.last_sent = now;
+        self.clock.published(now);
         Reaction::Advanced(Advance {
             closed,
             cause,

@@ -26,25 +26,17 @@ fn alive(pid: i32) -> bool {
 }
 
 fn start(ns: &Namespace, mesh: &Path, state: &Path) -> Process {
-    let settings = ns.settings();
-    let args = [
-        "--mesh".to_owned(),
-        mesh.display().to_string(),
-        "--iox-prefix".into(),
-        settings.prefix,
-        "--iox-root".into(),
-        settings.root,
-        "--set".into(),
-        "eyes=ideal".into(),
-        "--set".into(),
-        "episodes=0".into(),
-        "--set".into(),
-        format!("state={}", state.display()),
-        "--set".into(),
-        format!("json={}", state.join("run.json").display()),
-    ];
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    Process::start(ns, &testkit::binary("supervisor"), &args)
+    testkit::supervisor(
+        ns,
+        mesh,
+        1,
+        &[
+            ("eyes", "ideal".into()),
+            ("episodes", "0".into()),
+            ("state", state.display().to_string()),
+            ("json", state.join("run.json").display().to_string()),
+        ],
+    )
 }
 
 #[test]

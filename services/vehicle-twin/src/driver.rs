@@ -87,28 +87,17 @@ impl Budget {
     }
 }
 
-/// The lockstep protocol's time limits: the simulator's, the same protocol with the twin as the plant.
-pub use simulator::lockstep::Timing;
-
-/// Where the lockstep stands.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Phase {
-    Connecting,
-    Running,
-    Finished,
-}
+// The lockstep protocol is the simulator's, with the twin as the plant: its time limits, phases and
+// clock.
+use simulator::lockstep::{Deadlines, Due};
+pub use simulator::lockstep::{Phase, Timing};
 
 /// The twin in lockstep with the mesh.
 pub struct Lockstep {
     twin: Twin,
-    timing: Timing,
+    clock: Deadlines,
     budget: Budget,
-    phase: Phase,
     current: Shot,
-    started_at: Instant,
-    first_sent: Instant,
-    last_sent: Instant,
-    last_note: Instant,
 }
 
 impl Lockstep {
@@ -122,14 +111,9 @@ impl Lockstep {
         }
         let lockstep = Lockstep {
             twin,
-            timing,
+            clock: Deadlines::start(timing, now),
             budget: Budget { trials, done: 0 },
-            phase: Phase::Connecting,
             current: shot,
-            started_at: now,
-            first_sent: now,
-            last_sent: now,
-            last_note: now,
         };
         let reaction = Reaction::Publish {
             shot,
@@ -141,7 +125,7 @@ impl Lockstep {
     }
 
     pub fn phase(&self) -> Phase {
-        self.phase
+        self.clock.phase()
     }
 
     /// The frame waiting for its answer.
@@ -160,7 +144,7 @@ impl Lockstep {
     /// Setpoints arrived for the frame of time `time_ns`: the current frame's answer advances the
     /// twin; any other is ignored.
     pub fn on_setpoints(&mut self, time_ns: u64, setpoints: &[f64], now: Instant) -> Reaction {
-        if self.phase == Phase::Finished || time_ns != self.current.time_ns() {
+        if self.phase() == Phase::Finished || time_ns != self.current.time_ns() {
             return Reaction::Idle;
         }
         self.advance(Some(setpoints), Cause::Answered, now)
@@ -168,29 +152,13 @@ impl Lockstep {
 
     /// Time passed: re-send, or advance past the deadline.
     pub fn on_time(&mut self, now: Instant) -> Reaction {
-        match self.phase {
-            Phase::Finished => Reaction::Idle,
-            Phase::Running
-                if now.saturating_duration_since(self.first_sent) >= self.timing.deadline =>
-            {
-                self.advance(None, Cause::Deadline, now)
-            }
-            Phase::Connecting | Phase::Running => {
-                if now.saturating_duration_since(self.last_sent) < self.timing.resend {
-                    return Reaction::Idle;
-                }
-                self.last_sent = now;
-                let waiting_for_mesh = (self.phase == Phase::Connecting
-                    && now.saturating_duration_since(self.last_note) >= self.timing.waiting_note)
-                    .then(|| {
-                        self.last_note = now;
-                        now.saturating_duration_since(self.started_at)
-                    });
-                Reaction::Resend {
-                    shot: self.current,
-                    waiting_for_mesh,
-                }
-            }
+        match self.clock.on_time(now) {
+            Due::Idle => Reaction::Idle,
+            Due::Deadline => self.advance(None, Cause::Deadline, now),
+            Due::Resend { waiting_for_mesh } => Reaction::Resend {
+                shot: self.current,
+                waiting_for_mesh,
+            },
         }
     }
 
@@ -201,15 +169,13 @@ impl Lockstep {
             let (_, end) = self.twin.advance(None);
             ended.extend(end);
             self.budget.done += 1;
-            self.phase = Phase::Finished;
+            self.clock.finish();
             return Reaction::Finished { ended };
         }
         let (shot, passed) = advance_to_visible(&mut self.twin, answer, &mut ended);
         self.budget.done += ended.len() as u32;
         self.current = shot;
-        self.phase = Phase::Running;
-        self.first_sent = now;
-        self.last_sent = now;
+        self.clock.published(now);
         Reaction::Publish {
             shot,
             passed,

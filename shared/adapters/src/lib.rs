@@ -170,6 +170,13 @@ pub fn make_safe(value: f64) -> f64 {
     }
 }
 
+/// The error of a write or flush after `close`, naming the sink.
+pub fn closed(sink: &(impl ThrusterSink + ?Sized)) -> AdapterError {
+    AdapterError::Closed {
+        adapter: sink.describe(),
+    }
+}
+
 /// Checks the count against the thrusters and makes every setpoint safe (see [`make_safe`]).
 pub fn apply(adapter: &str, thrusters: usize, values: &[f64]) -> Result<Applied, AdapterError> {
     if values.len() != thrusters {

@@ -88,12 +88,6 @@ impl RecordSink {
         &self.path
     }
 
-    fn closed(&self) -> AdapterError {
-        AdapterError::Closed {
-            adapter: self.describe(),
-        }
-    }
-
     fn write_err(&self, source: std::io::Error) -> AdapterError {
         AdapterError::Write {
             path: self.path.clone(),
@@ -113,7 +107,7 @@ impl ThrusterSink for RecordSink {
 
     fn write(&mut self, stamp: &Stamp, setpoints: &[f64]) -> Result<Applied, AdapterError> {
         if self.file.is_none() {
-            return Err(self.closed());
+            return Err(crate::closed(self));
         }
         let applied = apply(&self.describe(), self.thrusters, setpoints)?;
         let written = SystemTime::now()
@@ -142,7 +136,7 @@ impl ThrusterSink for RecordSink {
 
     fn flush(&mut self) -> Result<(), AdapterError> {
         let Some(file) = self.file.as_mut() else {
-            return Err(self.closed());
+            return Err(crate::closed(self));
         };
         let result = file.flush();
         result.map_err(|e| self.write_err(e))
@@ -292,9 +286,7 @@ impl ThrusterSink for NullSink {
 
     fn write(&mut self, _stamp: &Stamp, setpoints: &[f64]) -> Result<Applied, AdapterError> {
         if self.closed {
-            return Err(AdapterError::Closed {
-                adapter: self.describe(),
-            });
+            return Err(crate::closed(self));
         }
         let applied = apply("null thrusters", self.thrusters, setpoints)?;
         self.written += 1;
@@ -303,9 +295,7 @@ impl ThrusterSink for NullSink {
 
     fn flush(&mut self) -> Result<(), AdapterError> {
         if self.closed {
-            return Err(AdapterError::Closed {
-                adapter: self.describe(),
-            });
+            return Err(crate::closed(self));
         }
         Ok(())
     }

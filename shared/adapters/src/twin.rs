@@ -282,9 +282,7 @@ impl ThrusterSink for TwinThrusterSink {
 
     fn write(&mut self, stamp: &Stamp, setpoints: &[f64]) -> Result<Applied, AdapterError> {
         if self.closed {
-            return Err(AdapterError::Closed {
-                adapter: self.describe(),
-            });
+            return Err(crate::closed(self));
         }
         let applied = apply("twin thrusters", self.thrusters, setpoints)?;
         let mut msg = ThrusterSetpoints {
@@ -301,9 +299,7 @@ impl ThrusterSink for TwinThrusterSink {
 
     fn flush(&mut self) -> Result<(), AdapterError> {
         if self.closed {
-            return Err(AdapterError::Closed {
-                adapter: self.describe(),
-            });
+            return Err(crate::closed(self));
         }
         // Every write is sent at once.
         Ok(())

@@ -63,7 +63,10 @@ pub struct Outbox<P: Payload> {
     notifier: Notifier<Ipc>,
 }
 
-fn open_topic<P: Payload>(
+/// Opens (or creates) the publish-subscribe service `service` with the topic's QoS `q`: for a port
+/// that is neither an [`Outbox`] nor an [`Inbox`] (e.g. a subscriber nobody wakes), so that its QoS
+/// still comes from here.
+pub fn open_topic<P: Payload>(
     node: &Node<Ipc>,
     service: &str,
     q: &crate::Qos,

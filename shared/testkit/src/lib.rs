@@ -329,3 +329,25 @@ pub fn children(pid: i32) -> Vec<(i32, String)> {
         })
         .collect()
 }
+
+/// The `supervisor` running `mesh` (a file of `config/`, or any path) in namespace `ns` with the
+/// experiment's `seed` and `--set KEY=VALUE` for each of `sets`.
+pub fn supervisor(ns: &Namespace, mesh: &Path, seed: u64, sets: &[(&str, String)]) -> Process {
+    let settings = ns.settings();
+    let mut args = vec![
+        "--mesh".to_owned(),
+        mesh.display().to_string(),
+        "--seed".into(),
+        seed.to_string(),
+        "--iox-prefix".into(),
+        settings.prefix,
+        "--iox-root".into(),
+        settings.root,
+    ];
+    for (k, v) in sets {
+        args.push("--set".into());
+        args.push(format!("{k}={v}"));
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    Process::start(ns, &binary("supervisor"), &args)
+}
