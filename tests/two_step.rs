@@ -7,10 +7,10 @@
 //! worse there than in simulation (the twin with its reality gap off, `config/twin-ideal.toml`, from
 //! the same starts); online learning improves it (the last five trials against the first five: the
 //! twin's trials cycle through five start poses, so they compare). And the vehicle mesh runs the very
-//! algorithm of the in-process step two (`vehicle_twin::TwinWorld`): the same trials' returns.
+//! algorithm of the in-process step two (`trainer::twin_world::TwinWorld`): the same trials' returns.
 //!
 //! Seed 10 and step one with ideal perception keep the test well under a minute; the seed is one of
-//! the 12 of the calibration table in `services/vehicle-twin/README.md` (learning improves yaw in 10
+//! the 12 of the calibration table in `services/lab/vehicle-twin/README.md` (learning improves yaw in 10
 //! of them, sway in 11).
 
 use config::{Dof, Scenario, TwinParams};
@@ -18,7 +18,7 @@ use learning::Checkpoint;
 use monitor::RunRecord;
 use std::path::Path;
 use std::process::Command;
-use vehicle_twin::{TwinEyes, TwinWorld};
+use trainer::twin_world::{TwinEyes, TwinWorld};
 
 const SEED: u64 = 10;
 const TRIALS: usize = 20;

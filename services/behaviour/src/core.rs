@@ -7,7 +7,7 @@
 //! learning statistics.
 
 use config::{Dof, LearningParams, Scenario};
-use learning::{Agent, AgentState, Algorithm, EpisodeSummary, StepKind};
+use learning::{Agent, AgentState, Algorithm, EpisodeSummary};
 use messages::{CableObservationMsg, DofCommand, LearningStats, Stamp, StepStatus};
 use model::CableObservation;
 
@@ -47,24 +47,15 @@ pub fn resume_seed(stream_seed: u64, state: &AgentState) -> u64 {
 pub fn behave(
     agent: &mut Agent,
     obs: &CableObservation,
-    kind: StepKind,
+    kind: StepStatus,
 ) -> (f64, Option<EpisodeSummary>) {
-    if !obs.found && kind == StepKind::Running {
+    if !obs.found && kind == StepStatus::Running {
         // Perception missed the cable in this frame although it is in view: hold still and learn
         // nothing from a state that was not observed.
         return (agent.skip(), None);
     }
     let step = agent.step(obs.state(agent.dof()), kind);
     (step.action, step.episode)
-}
-
-/// What the agent is told of a step with this status.
-pub fn step_kind(status: StepStatus) -> StepKind {
-    match status {
-        StepStatus::Running => StepKind::Running,
-        StepStatus::Lost => StepKind::Lost,
-        StepStatus::TimeLimit => StepKind::TimeLimit,
-    }
 }
 
 /// The statistics message of a finished episode.
@@ -142,7 +133,7 @@ impl Behaviour {
             );
         }
         self.last = Some((msg.stamp.episode, status.is_terminal()));
-        let (action, episode) = behave(&mut self.agent, &msg.observation(), step_kind(status));
+        let (action, episode) = behave(&mut self.agent, &msg.observation(), status);
         Output {
             command: DofCommand {
                 stamp: msg.stamp,
@@ -227,7 +218,7 @@ mod tests {
                 let (action, episode) = if !o.found && status == StepStatus::Running {
                     (a.skip(), None)
                 } else {
-                    let s = a.step(o.state(dof), step_kind(status));
+                    let s = a.step(o.state(dof), status);
                     (s.action, s.episode)
                 };
                 assert_eq!(
@@ -313,8 +304,8 @@ mod tests {
         let (scenario, learning) = params();
         let mut a = new_agent(Dof::Sway, Algorithm::Nac, &scenario, &learning, 5);
         assert_eq!(resume_seed(5, &a.checkpoint()), 5);
-        a.step([0.1, 0.0], StepKind::Running);
-        a.step([0.1, 0.0], StepKind::Running);
+        a.step([0.1, 0.0], StepStatus::Running);
+        a.step([0.1, 0.0], StepStatus::Running);
         let s = a.checkpoint();
         assert_ne!(resume_seed(5, &s), 5);
         assert_eq!(resume_seed(5, &s), resume_seed(5, &s.clone()));

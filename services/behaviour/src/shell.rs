@@ -3,19 +3,18 @@
 //!
 //! Start-up picks the agent: the behaviour's own `--checkpoint` when it exists (or its `.prev`, see
 //! [`crate::store`]), else the step-one `--initial` checkpoint's entry for this DOF, else a fresh
-//! agent. Then: loop { wait for an observation, answer each new `seq` once (a repeated `seq` gets the
-//! command already computed, the agent is not stepped twice), publish }. While learning, the
+//! agent. Then it serves its observations in lockstep (`Runtime::serve_steps`: each new `seq` once; a
+//! repeated `seq` gets the command already computed, the agent is not stepped twice). While learning, the
 //! checkpoint is saved every `--save-every` episodes and when SIGINT or SIGTERM stops the process.
 
-use crate::core::{Behaviour, Output, new_agent, resume_seed};
+use crate::core::{Behaviour, new_agent, resume_seed};
 use crate::store::{CheckpointFile, chain};
 use anyhow::{Context, bail};
 use clap::{CommandFactory, FromArgMatches, Parser};
 use config::Dof;
 use learning::{Agent, AgentState, Algorithm, Checkpoint, LearnerState};
 use messages::topics;
-use runtime::lockstep::{Once, Outcome};
-use runtime::{CommonArgs, Flow, Runtime, Stopped, Timer};
+use runtime::{Answer, CommonArgs, Flow, Runtime, Stopped};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -200,53 +199,39 @@ pub fn serve(rt: &Runtime, dof: Dof, args: &Args) -> anyhow::Result<()> {
     let observations = rt.inbox(&topics::CABLE_OBSERVATION)?;
     let commands = rt.outbox(&topics::command(dof))?;
     let stats = rt.outbox(&topics::learning(dof))?;
-    let mut once = Once::<Output>::new();
-    let mut on_input = || -> anyhow::Result<Flow> {
-        for msg in observations.drain()? {
-            let outcome = once.step(msg.stamp.seq, || {
-                Ok::<_, anyhow::Error>(behaviour.step(&msg))
-            })?;
-            match outcome {
-                Outcome::Fresh(out) => {
-                    commands.send(out.command)?;
-                    if let Some(s) = out.stats {
-                        stats.send(s)?;
-                        let episodes = behaviour.agent().episodes();
-                        tracing::debug!(
-                            episode = episodes,
-                            seq = s.stamp.seq,
-                            return_ = s.episode_return,
-                            steps = s.steps,
-                            gain = ?s.gain,
-                            actor_updates = s.actor_updates,
-                            "episode ended"
-                        );
-                        if let Some(store) = saver.as_mut()
-                            && args.save_every > 0
-                            && episodes.is_multiple_of(args.save_every)
-                            && let Err(e) = save(store, &behaviour)
-                        {
-                            // Keep controlling the vehicle; the next save tries again.
-                            tracing::error!("periodic checkpoint failed: {e:#}");
-                        }
-                    }
-                }
-                Outcome::Repeat(out) => {
-                    // The command only: the episode's statistics were published once.
-                    tracing::debug!(
-                        seq = msg.stamp.seq,
-                        "repeated observation: the same command again"
-                    );
-                    commands.send(out.command)?;
-                }
-                Outcome::Stale => {
-                    tracing::debug!(seq = msg.stamp.seq, last = ?once.last_seq(), "stale observation ignored")
-                }
+    let served = rt.serve_steps(
+        &observations,
+        &mut behaviour,
+        |behaviour, msg| Ok(behaviour.step(msg)),
+        |behaviour, answer| {
+            let out = answer.output();
+            commands.send(out.command)?;
+            // A repeated step gets the command only: the episode's statistics went out once.
+            let (Answer::New(_), Some(s)) = (answer, out.stats) else {
+                return Ok(Flow::Continue);
+            };
+            stats.send(s)?;
+            let episodes = behaviour.agent().episodes();
+            tracing::debug!(
+                episode = episodes,
+                seq = s.stamp.seq,
+                return_ = s.episode_return,
+                steps = s.steps,
+                gain = ?s.gain,
+                actor_updates = s.actor_updates,
+                "episode ended"
+            );
+            if let Some(store) = saver.as_mut()
+                && args.save_every > 0
+                && episodes.is_multiple_of(args.save_every)
+                && let Err(e) = save(store, behaviour)
+            {
+                // Keep controlling the vehicle; the next save tries again.
+                tracing::error!("periodic checkpoint failed: {e:#}");
             }
-        }
-        Ok(Flow::Continue)
-    };
-    let served = rt.serve(&[observations.listener()], Timer::None, |_| on_input());
+            Ok(Flow::Continue)
+        },
+    );
     match &served {
         Ok(Stopped::Signal) => tracing::info!("termination signal"),
         // An error is reported once, by `runtime::run`, after the save.

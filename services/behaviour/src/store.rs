@@ -230,7 +230,7 @@ impl CheckpointFile {
 mod tests {
     use super::*;
     use config::{LearningParams, Scenario};
-    use learning::{Algorithm, StepKind};
+    use learning::{Algorithm, StepStatus};
     use std::fs;
 
     fn state(dof: Dof, steps: usize) -> AgentState {
@@ -242,7 +242,7 @@ mod tests {
             3,
         );
         for i in 0..steps {
-            a.step([0.1 * (i as f64).sin(), 0.05], StepKind::Running);
+            a.step([0.1 * (i as f64).sin(), 0.05], StepStatus::Running);
         }
         a.checkpoint()
     }

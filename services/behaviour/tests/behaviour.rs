@@ -6,7 +6,7 @@
 //! actions, returns and checkpoints (bitwise), for the same seed.
 
 use config::{Dof, LearningParams, Scenario};
-use learning::{Agent, AgentState, Algorithm, Checkpoint, EpisodeSummary, LearnerState, StepKind};
+use learning::{Agent, AgentState, Algorithm, Checkpoint, EpisodeSummary, LearnerState};
 use messages::{
     CableObservationMsg, CableTruth, DofCommand, Endpoint, Inbox, LearningStats, Outbox, Stamp,
     StepStatus, topics,
@@ -63,12 +63,8 @@ impl Reference {
 
     fn step(&mut self, msg: &CableObservationMsg) -> (f64, Option<EpisodeSummary>) {
         let obs = msg.observation();
-        let kind = match msg.stamp.status() {
-            StepStatus::Running => StepKind::Running,
-            StepStatus::Lost => StepKind::Lost,
-            StepStatus::TimeLimit => StepKind::TimeLimit,
-        };
-        if !obs.found && kind == StepKind::Running {
+        let kind = msg.stamp.status();
+        if !obs.found && kind == StepStatus::Running {
             return (self.0.skip(), None);
         }
         let s = self.0.step(obs.state(self.0.dof()), kind);

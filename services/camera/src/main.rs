@@ -9,8 +9,7 @@ use adapters::{Frame, FrameSource, Wake};
 use camera::vehicle::{Publish, SeqMap, SourceSpec, VehicleCamera};
 use camera::{Eyes, SimCamera};
 use clap::Parser;
-use messages::{CameraFrameHeader, Endpoint, topics};
-use runtime::lockstep::{Once, Outcome};
+use messages::{Endpoint, topics};
 use runtime::{CommonArgs, Flow, Runtime, Timer};
 use std::convert::Infallible;
 use std::process::ExitCode;
@@ -58,29 +57,19 @@ fn serve_sim(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     let frames = rt.frame_outbox()?;
     let states = rt.inbox(&topics::VEHICLE_STATE)?;
     tracing::info!(eyes = ?args.eyes, "ready");
-    let mut once = Once::<CameraFrameHeader>::new();
-    let mut on_input = || -> anyhow::Result<Flow> {
-        // Only the newest state matters: the simulator waits on it, older ones were answered
-        // (or overtaken by a deadline).
-        let Some(state) = states.drain()?.into_iter().max_by_key(|s| s.stamp.seq) else {
-            return Ok(Flow::Continue);
-        };
-        let header = match once.step(state.stamp.seq, || {
-            Ok::<_, Infallible>(camera.header(&state))
-        }) {
-            Ok(Outcome::Fresh(h) | Outcome::Repeat(h)) => h,
-            Ok(Outcome::Stale) => {
-                tracing::debug!(seq = state.stamp.seq, "an older state: dropped");
-                return Ok(Flow::Continue);
-            }
-        };
-        // A repeat is rendered again: the same seed and frame index give the same bytes.
-        frames.send_with(header, camera.image_len(), |image| {
-            camera.render(&state, image)
-        })??;
-        Ok(Flow::Continue)
-    };
-    rt.serve(&[states.listener()], Timer::None, |_| on_input())?;
+    rt.serve_steps(
+        &states,
+        &mut camera,
+        |_, state| Ok(*state),
+        |camera, answer| {
+            // A repeat is rendered again: the same seed and frame index give the same bytes.
+            let state = answer.output();
+            frames.send_with(camera.header(state), camera.image_len(), |image| {
+                camera.render(state, image)
+            })??;
+            Ok(Flow::Continue)
+        },
+    )?;
     Ok(())
 }
 

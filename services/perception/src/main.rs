@@ -4,9 +4,7 @@
 use clap::Parser;
 use messages::topics;
 use perception::{Eyes, Observed, Observer};
-use runtime::lockstep::{Once, Outcome};
-use runtime::{CommonArgs, Flow, Timer};
-use std::convert::Infallible;
+use runtime::{Answer, CommonArgs, Flow};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -30,36 +28,26 @@ fn main() -> ExitCode {
         let frames = rt.frame_inbox()?;
         let out = rt.outbox(&topics::CABLE_OBSERVATION)?;
         tracing::info!(eyes = ?args.eyes, "ready");
-        let mut once = Once::<Observed>::new();
-        let mut on_input = || -> anyhow::Result<Flow> {
-            // Every frame in order: the tracker must see each step once, and a repeat is cheap.
-            while let Some(outcome) = frames.receive_with(|header, image| {
-                let Ok(outcome) = once.step(header.stamp.seq, || {
-                    Ok::<_, Infallible>(observer.observe(header, image))
-                });
-                (header.stamp, outcome)
-            })? {
-                match outcome {
-                    (_, Outcome::Fresh(observed)) => {
-                        if let Some(why) = &observed.bad_frame {
-                            tracing::warn!(
-                                seq = observed.msg.stamp.seq,
-                                "bad frame, reported as not found: {why}"
-                            );
-                        }
-                        out.send(observed.msg)?;
-                    }
-                    (_, Outcome::Repeat(observed)) => {
-                        out.send(observed.msg)?;
-                    }
-                    (stamp, Outcome::Stale) => {
-                        tracing::debug!(seq = stamp.seq, "an older frame: dropped");
-                    }
+        rt.serve_steps(
+            &frames,
+            &mut observer,
+            |observer, (header, image)| Ok(observer.observe(header, image)),
+            |_, answer| {
+                let observed = answer.output();
+                if let Answer::New(Observed {
+                    bad_frame: Some(why),
+                    msg,
+                }) = answer
+                {
+                    tracing::warn!(
+                        seq = msg.stamp.seq,
+                        "bad frame, reported as not found: {why}"
+                    );
                 }
-            }
-            Ok(Flow::Continue)
-        };
-        rt.serve(&[frames.listener()], Timer::None, |_| on_input())?;
+                out.send(observed.msg)?;
+                Ok(Flow::Continue)
+            },
+        )?;
         Ok(())
     })
 }

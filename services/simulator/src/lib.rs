@@ -3,7 +3,7 @@
 //!
 //! An episode starts at a random pose around the cable with the cable in view (DESIGN.md: x_g and
 //! Theta uniform in the reset box, all velocities 0) and ends when the cable leaves the image
-//! ([`Status::Lost`]) or after `max_steps` steps ([`Status::TimeLimit`]). The loop is data-driven:
+//! ([`StepStatus::Lost`]) or after `max_steps` steps ([`StepStatus::TimeLimit`]). The loop is data-driven:
 //! [`Simulator::step`] advances one control period with the setpoints of the current step.
 //!
 //! [`lockstep`] is the simulator's side of the mesh's protocol (publish a step, wait for its
@@ -12,28 +12,10 @@
 
 pub mod lockstep;
 
-use config::{ResetParams, Scenario, Timing};
-use model::{Cable, Camera, Dynamics, Pose, ThrusterLayout, VehicleState};
+use config::{ResetParams, Scenario, StepStatus, Timing};
+use model::{Cable, Camera, Dynamics, ThrusterLayout, VehicleState};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
-
-/// What the current step of an episode is.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-#[repr(u8)]
-pub enum Status {
-    /// The episode goes on: the step's setpoints are integrated.
-    Running = 0,
-    /// The cable has left the image: the episode ended in failure.
-    Lost = 1,
-    /// The episode reached its last step with the cable in view.
-    TimeLimit = 2,
-}
-
-impl Status {
-    pub fn is_terminal(self) -> bool {
-        self != Status::Running
-    }
-}
 
 /// One step of an episode: its identifiers, the vehicle's state and the episode's status.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -45,7 +27,7 @@ pub struct SimStep {
     /// Simulated time since the start of the run (s).
     pub time_s: f64,
     pub state: VehicleState,
-    pub status: Status,
+    pub status: StepStatus,
 }
 
 /// The simulated world.
@@ -77,7 +59,7 @@ impl Simulator {
                 step: 0,
                 time_s: 0.0,
                 state: VehicleState::default(),
-                status: Status::Running,
+                status: StepStatus::Running,
             },
             started: false,
         }
@@ -102,7 +84,10 @@ impl Simulator {
 
     /// Starts the next episode at a random pose with the cable in view.
     pub fn reset(&mut self) -> SimStep {
-        let pose = sample_start_pose(&self.camera, &self.cable, &self.reset, &mut self.rng);
+        let rng = &mut self.rng;
+        let pose = model::start_pose(&self.camera, &self.cable, &self.reset, |range| {
+            rng.random_range(range)
+        });
         let episode = if self.started {
             self.current.episode + 1
         } else {
@@ -117,7 +102,7 @@ impl Simulator {
                 pose,
                 ..VehicleState::default()
             },
-            status: Status::Running,
+            status: StepStatus::Running,
         };
         self.current
     }
@@ -133,11 +118,11 @@ impl Simulator {
         let state = self.dynamics.step(&self.current.state, forces, dt);
         let step = self.current.step + 1;
         let status = if self.camera.view(&state.pose, &self.cable).is_none() {
-            Status::Lost
+            StepStatus::Lost
         } else if step >= self.timing.max_steps {
-            Status::TimeLimit
+            StepStatus::TimeLimit
         } else {
-            Status::Running
+            StepStatus::Running
         };
         self.current = SimStep {
             episode: self.current.episode,
@@ -147,34 +132,6 @@ impl Simulator {
             status,
         };
         self.current
-    }
-}
-
-/// A pose with the cable seen at x_g ~ U[-x_g_max, x_g_max] and Theta ~ U[-theta_max, theta_max].
-///
-/// The pose comes from [`Camera::pose_for`], exact in the camera's own geometry; a draw the image
-/// cannot show (e.g. a large x_g with a nearly horizontal line) is drawn again.
-pub fn sample_start_pose(
-    camera: &Camera,
-    cable: &Cable,
-    reset: &ResetParams,
-    rng: &mut impl Rng,
-) -> Pose {
-    let theta_max = reset.theta_max_deg.to_radians();
-    for _ in 0..1000 {
-        let x_g = rng.random_range(-reset.x_g_max..=reset.x_g_max);
-        let theta = rng.random_range(-theta_max..=theta_max);
-        let along = rng.random_range(-reset.along_cable_m..=reset.along_cable_m);
-        if let Some(pose) = camera.pose_for(cable, x_g, theta, along) {
-            return pose;
-        }
-    }
-    // Unreachable with a validated reset box; a pose over the cable is the safe answer.
-    let p = cable.point(0.0, 0.0);
-    Pose {
-        x: p[0],
-        y: p[1],
-        psi: cable.heading,
     }
 }
 
@@ -215,13 +172,13 @@ mod tests {
         }
         assert_eq!(
             (last.episode, last.step, last.status),
-            (0, 10, Status::TimeLimit)
+            (0, 10, StepStatus::TimeLimit)
         );
         // The next call starts episode 1 and ignores its setpoints.
         let next = sim.step(&[1.0, 1.0, 1.0]);
         assert_eq!(
             (next.episode, next.step, next.status),
-            (1, 0, Status::Running)
+            (1, 0, StepStatus::Running)
         );
         assert_eq!(next.state.velocity, model::Velocity::default());
 
@@ -230,10 +187,10 @@ mod tests {
         let mut sim = Simulator::new(&s, 2);
         sim.reset();
         let mut step = sim.step(&[0.0, 0.0, 1.0]);
-        while step.status == Status::Running {
+        while step.status == StepStatus::Running {
             step = sim.step(&[0.0, 0.0, 1.0]);
         }
-        assert_eq!(step.status, Status::Lost);
+        assert_eq!(step.status, StepStatus::Lost);
         assert!(step.step < 200);
         assert!(sim.camera().view(&step.state.pose, sim.cable()).is_none());
     }

@@ -4,9 +4,10 @@
 
 use clap::Parser;
 use messages::{Endpoint, topics};
+use runtime::lockstep::{Cause, Limits, Lockstep, Reaction};
 use runtime::{CommonArgs, Flow, Timer};
-use simulator::lockstep::{Advance, Cause, Lockstep, Reaction, Timing};
-use simulator::{Simulator, Status};
+use simulator::Simulator;
+use simulator::lockstep::{EpisodeEnd, Published, SimPlant};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -41,102 +42,120 @@ fn main() -> ExitCode {
         }
         let setpoints = rt.inbox(&topics::THRUSTER_SETPOINTS)?;
         let states = rt.outbox(&topics::VEHICLE_STATE)?;
-        let timing = Timing::new(
+        let limits = Limits::new(
             Duration::from_millis(args.resend_ms),
             Duration::from_millis(args.deadline_ms),
         );
-        let sim = Simulator::new(rt.scenario(), rt.stream_seed("simulator"));
-        let mut lockstep = Lockstep::start(sim, timing, args.episodes, Instant::now());
-        states.send(lockstep.current().message())?;
+        let sim = SimPlant::new(Simulator::new(rt.scenario(), rt.stream_seed("simulator")));
+        let (mut lockstep, first) = Lockstep::start(sim, limits, args.episodes, Instant::now());
         tracing::info!(
             episodes = args.episodes,
             resend_ms = args.resend_ms,
             deadline_ms = args.deadline_ms,
-            "published the first state; waiting for the mesh"
+            "publishing the first state; waiting for the mesh"
         );
-
         // The mesh's pace is measured from its first answer (start-up is not counted).
-        let mut running_since: Option<(Instant, u64)> = None;
-        let mut act = |reaction: Reaction| -> anyhow::Result<Flow> {
-            match reaction {
-                Reaction::Idle => {}
-                Reaction::Resend {
-                    step,
-                    waiting_for_mesh,
-                } => {
-                    if let Some(waited) = waiting_for_mesh {
-                        tracing::info!(
-                            seq = step.seq,
-                            waited_s = waited.as_secs(),
-                            subscribers = states.subscribers(),
-                            "waiting for the mesh: no setpoints yet"
-                        );
-                    }
-                    states.send(step.message())?;
-                }
-                Reaction::Advanced(advance) => {
-                    let (since, first) =
-                        *running_since.get_or_insert((Instant::now(), advance.closed.seq));
-                    report(&advance, args.episodes, since, first);
-                    match advance.next {
-                        Some(next) => {
-                            states.send(next.message())?;
+        let mut pace = Pace::default();
+        let mut act =
+            |lockstep: &Lockstep<SimPlant>, reaction: Reaction<SimPlant>| -> anyhow::Result<Flow> {
+                match reaction {
+                    Reaction::Idle => {}
+                    Reaction::Resend {
+                        step,
+                        waiting_for_mesh,
+                    } => {
+                        if let Some(waited) = waiting_for_mesh {
+                            tracing::info!(
+                                seq = step.seq,
+                                waited_s = waited.as_secs(),
+                                subscribers = states.subscribers(),
+                                "waiting for the mesh: no setpoints yet"
+                            );
                         }
-                        None => return Ok(Flow::Stop),
+                        states.send(step.message())?;
                     }
-                }
-            }
-            Ok(Flow::Continue)
-        };
-        rt.serve(
-            &[setpoints.listener()],
-            Timer::Timeout(timing.tick()),
-            |_| {
-                while let Some(sp) = setpoints.receive()? {
-                    let reaction =
-                        lockstep.on_setpoints(sp.stamp.seq, sp.as_slice(), Instant::now());
-                    if act(reaction)? == Flow::Stop {
+                    Reaction::Publish {
+                        closed,
+                        next,
+                        cause,
+                        waited,
+                        ended,
+                        ..
+                    } => {
+                        if let Some(closed) = closed {
+                            report(lockstep, &mut pace, &closed, cause, waited, &ended);
+                        }
+                        states.send(next.message())?;
+                    }
+                    Reaction::Finished {
+                        closed,
+                        cause,
+                        waited,
+                        ended,
+                    } => {
+                        report(lockstep, &mut pace, &closed, cause, waited, &ended);
                         return Ok(Flow::Stop);
                     }
                 }
-                act(lockstep.on_time(Instant::now()))
+                Ok(Flow::Continue)
+            };
+        act(&lockstep, first)?;
+        rt.serve(
+            &[setpoints.listener()],
+            Timer::Timeout(limits.tick()),
+            |_| {
+                while let Some(sp) = setpoints.receive()? {
+                    let r = lockstep.on_answer(sp.stamp.seq, sp.as_slice(), Instant::now());
+                    if act(&lockstep, r)? == Flow::Stop {
+                        return Ok(Flow::Stop);
+                    }
+                }
+                let r = lockstep.on_time(Instant::now());
+                act(&lockstep, r)
             },
         )?;
         Ok(())
     })
 }
 
+/// The mesh's pace since its first answer.
+#[derive(Default)]
+struct Pace {
+    since: Option<(Instant, u64)>,
+}
+
 /// Logs a closed step: a missed deadline (WARN), an episode's end with the run's progress (INFO).
-fn report(advance: &Advance, episodes: u32, since: Instant, first: u64) {
-    let closed = &advance.closed;
-    if advance.cause == Cause::Deadline {
+fn report(
+    lockstep: &Lockstep<SimPlant>,
+    pace: &mut Pace,
+    closed: &Published,
+    cause: Cause,
+    waited: Duration,
+    ended: &[EpisodeEnd],
+) {
+    let (since, first) = *pace.since.get_or_insert((Instant::now(), closed.seq));
+    if cause == Cause::Deadline {
         tracing::warn!(
             seq = closed.seq,
             episode = closed.step.episode,
             step = closed.step.step,
-            waited_ms = advance.waited.as_millis() as u64,
+            waited_ms = waited.as_millis() as u64,
             "no setpoints within the deadline: stepping with zero thrust"
         );
     }
-    if let Some(end) = advance.ended {
-        let how = match end.status {
-            Status::Lost => "cable lost",
-            Status::TimeLimit => "time limit",
-            Status::Running => "running",
-        };
-        let of = if episodes == 0 {
-            "forever".to_owned()
-        } else {
-            episodes.to_string()
-        };
+    let of = match lockstep.episodes() {
+        0 => "forever".to_owned(),
+        n => n.to_string(),
+    };
+    for end in ended {
         // Every published step so far, re-sends not counted; the pace since the mesh answered.
         let steps = closed.seq;
         let steps_per_s = (steps - first) as f64 / since.elapsed().as_secs_f64().max(1e-9);
         tracing::info!(
             episode = end.episode,
             steps = end.steps,
-            end = how,
-            done = end.done,
+            end = end.status.describe(),
+            done = lockstep.episodes_done(),
             of = %of,
             total_steps = steps,
             steps_per_s = steps_per_s.round() as u64,

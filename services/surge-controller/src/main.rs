@@ -3,8 +3,7 @@
 
 use clap::Parser;
 use messages::{DofCommand, topics};
-use runtime::lockstep::{Once, Outcome};
-use runtime::{CommonArgs, Flow, Timer};
+use runtime::{CommonArgs, Flow};
 use std::process::ExitCode;
 use surge_controller::SurgeController;
 
@@ -25,28 +24,21 @@ fn main() -> ExitCode {
         let controller = SurgeController::new(&scenario.surge, &scenario.model.surge);
         let observations = rt.inbox(&topics::CABLE_OBSERVATION)?;
         let commands = rt.outbox(&topics::SURGE_COMMAND)?;
-        let mut once = Once::<DofCommand>::new();
-        let mut on_input = || -> anyhow::Result<Flow> {
-            for msg in observations.drain()? {
-                let outcome = once.step(msg.stamp.seq, || {
-                    Ok::<_, anyhow::Error>(DofCommand {
-                        stamp: msg.stamp,
-                        value: controller.command(&msg.observation()),
-                    })
-                })?;
-                match outcome {
-                    // A repeated step gets the command computed for it the first time.
-                    Outcome::Fresh(cmd) | Outcome::Repeat(cmd) => {
-                        commands.send(cmd)?;
-                    }
-                    Outcome::Stale => {
-                        tracing::debug!(seq = msg.stamp.seq, "stale observation ignored")
-                    }
-                }
-            }
-            Ok(Flow::Continue)
-        };
-        rt.serve(&[observations.listener()], Timer::None, |_| on_input())?;
+        rt.serve_steps(
+            &observations,
+            &mut (),
+            |_, msg| {
+                Ok(DofCommand {
+                    stamp: msg.stamp,
+                    value: controller.command(&msg.observation()),
+                })
+            },
+            // A repeated step gets the command computed for it the first time.
+            |_, answer| {
+                commands.send(*answer.output())?;
+                Ok(Flow::Continue)
+            },
+        )?;
         Ok(())
     })
 }

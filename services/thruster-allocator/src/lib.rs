@@ -6,6 +6,12 @@
 //! force. When a setpoint exceeds 1 the whole vector is scaled down by the largest magnitude: the
 //! vehicle then pushes in the commanded direction, only less hard (clipping each thruster alone
 //! would turn a pure surge-plus-yaw command into a different mix).
+//!
+//! [`step::StepAllocator`] is the allocator's side of the lockstep: it gathers the three commands of
+//! one step, answers each step once, and allocates a step whose commands did not all arrive within
+//! the deadline with the missing ones as 0.
+
+pub mod step;
 
 use config::{MAX_THRUSTERS, Thrusters};
 use model::{Forces, ThrusterLayout};

@@ -61,6 +61,83 @@ impl std::fmt::Display for Dof {
     }
 }
 
+/// Where an episode stands at a step: the one status the simulator, the vehicle twin, the messages
+/// (as a `u8`) and the learners share.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[repr(u8)]
+pub enum StepStatus {
+    /// The cable is in view and the episode goes on.
+    Running = 0,
+    /// The cable has left the image: an absorbing failure, the episode is over.
+    Lost = 1,
+    /// The episode reached its last step with the cable in view: over, but not a failure.
+    TimeLimit = 2,
+}
+
+impl StepStatus {
+    pub fn from_u8(v: u8) -> Option<StepStatus> {
+        match v {
+            0 => Some(StepStatus::Running),
+            1 => Some(StepStatus::Lost),
+            2 => Some(StepStatus::TimeLimit),
+            _ => None,
+        }
+    }
+
+    pub fn is_terminal(self) -> bool {
+        self != StepStatus::Running
+    }
+
+    /// How an episode ending with this status is told in logs.
+    pub fn describe(self) -> &'static str {
+        match self {
+            StepStatus::Running => "running",
+            StepStatus::Lost => "cable lost",
+            StepStatus::TimeLimit => "time limit",
+        }
+    }
+}
+
+/// How the behaviours see the cable: one choice for the camera, perception, the trainer and the
+/// twin.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Eyes {
+    /// The geometric camera's exact line and rates (ideal perception; frames carry no image).
+    Ideal,
+    /// Rendered camera images and the vision system's perception, as on the vehicle.
+    Images,
+}
+
+impl Eyes {
+    pub fn name(self) -> &'static str {
+        match self {
+            Eyes::Ideal => "ideal",
+            Eyes::Images => "images",
+        }
+    }
+}
+
+impl std::fmt::Display for Eyes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Eyes {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "ideal" => Ok(Eyes::Ideal),
+            "images" => Ok(Eyes::Images),
+            other => Err(format!(
+                "`{other}` is not a kind of eyes (expected `ideal` or `images`)"
+            )),
+        }
+    }
+}
+
 /// A configuration section that can check its own values.
 pub trait Validate {
     /// Checks every value; `key` is the dotted path of this section in its file (e.g. `model.yaw`).

@@ -3,13 +3,13 @@
 //! `AGENT_BENCH_STEPS` sets the number of steps (default 4 million, the trainer's step-one budget).
 
 use config::{Dof, LearningParams, Rewards};
-use learning::{Agent, Algorithm, StepKind};
+use learning::{Agent, Algorithm, StepStatus};
 use std::hint::black_box;
 use std::time::Instant;
 
 /// The plant and the episode rules, with a policy given as a closure: position and rate of the cable
 /// in the image, lost outside [-0.5, 0.5], 200-step episodes, resets from a cheap pseudo-random cycle.
-fn closed_loop(steps: usize, mut act: impl FnMut([f64; 2], StepKind) -> f64) -> (f64, u64) {
+fn closed_loop(steps: usize, mut act: impl FnMut([f64; 2], StepStatus) -> f64) -> (f64, u64) {
     let mut x = [0.3_f64, 0.0];
     let mut t = 0;
     let mut seed = 0x2545_f491_4f6c_dd1d_u64;
@@ -17,14 +17,14 @@ fn closed_loop(steps: usize, mut act: impl FnMut([f64; 2], StepKind) -> f64) -> 
     let start = Instant::now();
     for _ in 0..steps {
         let kind = if x[0].abs() >= 0.5 {
-            StepKind::Lost
+            StepStatus::Lost
         } else if t == 200 {
-            StepKind::TimeLimit
+            StepStatus::TimeLimit
         } else {
-            StepKind::Running
+            StepStatus::Running
         };
         let u = act(x, kind);
-        if kind == StepKind::Running {
+        if kind == StepStatus::Running {
             x = [x[0] + 0.2 * x[1], (0.95 * x[1] + 0.03 * u).clamp(-0.5, 0.5)];
             t += 1;
         } else {

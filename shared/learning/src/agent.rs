@@ -2,7 +2,7 @@
 //!
 //! The sway and yaw behaviour services and the in-process trainer call [`Agent::step`] once per
 //! control step with the DOF's observed state `(position, rate)` and what the simulator says of it
-//! ([`StepKind`]). The agent closes the transition it left pending on the previous step, lets its
+//! ([`StepStatus`]). The agent closes the transition it left pending on the previous step, lets its
 //! learner update, and, unless the episode ended, samples the next action.
 //!
 //! The task's rules (DESIGN.md, "The scenario"):
@@ -20,6 +20,7 @@ use crate::gpomdp::{Gpomdp, GpomdpConfig};
 use crate::learner::{Algorithm, Learner, PolicyLearner, Transition};
 use crate::nac::{GradientHistory, Nac, NacConfig, NacStatistics};
 use crate::policy::LinearGaussian;
+use config::StepStatus;
 use config::{Dof, LearningParams, QuadraticCost};
 use nalgebra::{SMatrix, SVector, Vector2};
 use rand::SeedableRng;
@@ -29,18 +30,6 @@ use rand::rngs::StdRng;
 pub type CableNac = Nac<2, 6>;
 /// Either learner on the cable task's 2-D state.
 pub type CableLearner = Learner<2, 6>;
-
-/// What the simulator (or, on the vehicle, perception and the episode clock) says of an observation.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum StepKind {
-    /// The cable is in view and the episode goes on: act.
-    Running,
-    /// The cable left the image: an absorbing failure, the episode is over.
-    Lost,
-    /// The episode reached its step limit: over, but not a failure (the value goes on).
-    TimeLimit,
-}
 
 /// Why an episode ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -239,11 +228,11 @@ impl Agent {
     }
 
     /// One control step. `x` is the DOF's observed `(position, rate)`; it is clipped to the box here as
-    /// well, so the features and the failure reward agree with the box. With [`StepKind::Lost`], `x` is
+    /// well, so the features and the failure reward agree with the box. With [`StepStatus::Lost`], `x` is
     /// not used (perception has nothing to report). Otherwise a non-finite `x` aborts the episode
     /// (nothing is learned from it) and returns action 0.
-    pub fn step(&mut self, x: [f64; 2], kind: StepKind) -> Step {
-        if kind != StepKind::Lost && !(x[0].is_finite() && x[1].is_finite()) {
+    pub fn step(&mut self, x: [f64; 2], kind: StepStatus) -> Step {
+        if kind != StepStatus::Lost && !(x[0].is_finite() && x[1].is_finite()) {
             tracing::warn!(dof = %self.dof, ?x, ?kind, "non-finite observation: episode aborted");
             return Step {
                 action: 0.0,
@@ -260,8 +249,8 @@ impl Agent {
         let mut actor_updated = false;
         if let Some(p) = self.pending.take() {
             let (reward, next) = match kind {
-                StepKind::Lost => (self.failure_reward, None),
-                StepKind::Running | StepKind::TimeLimit => {
+                StepStatus::Lost => (self.failure_reward, None),
+                StepStatus::Running | StepStatus::TimeLimit => {
                     (self.cost.reward([p.x[0], p.x[1]], p.u_applied), Some(x))
                 }
             };
@@ -280,7 +269,7 @@ impl Agent {
         }
 
         match kind {
-            StepKind::Running => {
+            StepStatus::Running => {
                 let u = self.policy.sample(&x, &mut self.rng);
                 let applied = if u.is_finite() {
                     u.clamp(-1.0, 1.0)
@@ -300,8 +289,8 @@ impl Agent {
                     episode: None,
                 }
             }
-            StepKind::Lost | StepKind::TimeLimit => {
-                let end = if kind == StepKind::Lost {
+            StepStatus::Lost | StepStatus::TimeLimit => {
+                let end = if kind == StepStatus::Lost {
                     EpisodeEnd::Lost
                 } else {
                     EpisodeEnd::TimeLimit
@@ -526,9 +515,9 @@ mod tests {
         let (seed, k) = (11, [10.0, 0.0]);
         let mut a = agent(Algorithm::Nac, k, seed);
         let (x0, x1) = ([0.3, 0.1], [0.25, 0.0]);
-        assert_eq!(a.step(x0, StepKind::Running).action, 1.0);
+        assert_eq!(a.step(x0, StepStatus::Running).action, 1.0);
         let u_sampled = mean(k, x0) + SIGMA * noise(seed, 0);
-        a.step(x1, StepKind::Running);
+        a.step(x1, StepStatus::Running);
 
         // The first transition alone: z = phi_hat, b = z r, A = z (phi_hat - gamma phi(x1))'.
         let n = nac(&a);
@@ -553,11 +542,11 @@ mod tests {
         let (seed, k) = (5, [-1.0, -0.5]);
         let mut a = agent(Algorithm::Nac, k, seed);
         let x0 = [0.2, -0.1];
-        let applied = a.step(x0, StepKind::Running).action;
+        let applied = a.step(x0, StepStatus::Running).action;
         let u_sampled = mean(k, x0) + SIGMA * noise(seed, 0);
         assert_eq!(applied, u_sampled, "not clipped here");
         // Perception has nothing to say when the cable is lost: x is not used, even if NaN.
-        let s = a.step([f64::NAN, f64::NAN], StepKind::Lost);
+        let s = a.step([f64::NAN, f64::NAN], StepStatus::Lost);
 
         let r_fail = -(1.1 * 0.5 * 0.5 + 0.2 * 0.5 * 0.5 + 0.01) / (1.0 - GAMMA);
         assert!((a.failure_reward() - r_fail).abs() < 1e-12);
@@ -584,8 +573,8 @@ mod tests {
 
         // Nothing is pending any more: a second terminal observation is not an episode and teaches nothing.
         let (a_mat, b_vec) = (*n.a(), *n.b());
-        assert!(a.step(x0, StepKind::Lost).episode.is_none());
-        assert!(a.step(x0, StepKind::TimeLimit).episode.is_none());
+        assert!(a.step(x0, StepStatus::Lost).episode.is_none());
+        assert!(a.step(x0, StepStatus::TimeLimit).episode.is_none());
         assert_eq!((*nac(&a).a(), *nac(&a).b()), (a_mat, b_vec));
         assert_eq!((a.steps(), a.episodes()), (1, 1));
     }
@@ -595,9 +584,9 @@ mod tests {
         let (seed, k) = (8, [-1.0, -0.5]);
         let mut a = agent(Algorithm::Nac, k, seed);
         let (x0, x1) = ([0.2, -0.1], [0.1, -0.2]);
-        let applied = a.step(x0, StepKind::Running).action;
+        let applied = a.step(x0, StepStatus::Running).action;
         let u_sampled = mean(k, x0) + SIGMA * noise(seed, 0);
-        let s = a.step(x1, StepKind::TimeLimit);
+        let s = a.step(x1, StepStatus::TimeLimit);
         let r = cost().reward(x0, applied);
         let e = s.episode.unwrap();
         assert_eq!(
@@ -615,19 +604,19 @@ mod tests {
         let (seed, k) = (21, [-1.0, -0.5]);
         let mut a = agent(Algorithm::Nac, k, seed);
         for x in [[0.3, 0.0], [0.2, -0.1], [0.1, -0.1]] {
-            a.step(x, StepKind::Running);
+            a.step(x, StepStatus::Running);
         }
         assert!(nac(&a).z().norm() > 0.0);
-        a.step([0.05, 0.0], StepKind::TimeLimit);
+        a.step([0.05, 0.0], StepStatus::TimeLimit);
         assert_eq!(*nac(&a).z(), SVector::<f64, 6>::zeros());
 
         // The next episode's first transition starts a fresh trace: z = phi_hat (times beta if the
         // actor was updated on that step), nothing of the previous episode.
         let y0 = [-0.2, 0.1];
-        a.step(y0, StepKind::Running);
+        a.step(y0, StepStatus::Running);
         let k_now = a.gain();
         let u_sampled = mean(k_now, y0) + SIGMA * noise(seed, 3);
-        let s = a.step([-0.15, 0.1], StepKind::Running);
+        let s = a.step([-0.15, 0.1], StepStatus::Running);
         let expect = phi_hat(k_now, y0, u_sampled) * if s.actor_updated { 0.9 } else { 1.0 };
         assert!((nac(&a).z() - expect).norm() < 1e-10);
     }
@@ -648,11 +637,11 @@ mod tests {
         let mut t = 0;
         for i in 0..steps {
             let kind = if x[0].abs() >= 0.5 {
-                StepKind::Lost
+                StepStatus::Lost
             } else if t == 50 {
-                StepKind::TimeLimit
+                StepStatus::TimeLimit
             } else {
-                StepKind::Running
+                StepStatus::Running
             };
             let s = a.step(x, kind);
             actions.push(s.action);
@@ -715,7 +704,7 @@ mod tests {
     #[test]
     fn the_episode_return_sums_the_rewards_of_the_applied_actions_and_the_failure() {
         for algorithm in Algorithm::ALL {
-            for end in [StepKind::Lost, StepKind::TimeLimit] {
+            for end in [StepStatus::Lost, StepStatus::TimeLimit] {
                 let mut a = agent(algorithm, [4.0, 0.0], 3); // a large gain: most actions are clipped
                 let xs = [[0.3, 0.1], [0.35, 0.2], [0.4, 0.3], [0.45, 0.4]];
                 let mut want = 0.0_f64;
@@ -724,12 +713,12 @@ mod tests {
                     if let Some((px, pu)) = last {
                         want += cost().reward(px, pu);
                     }
-                    let u = a.step(x, StepKind::Running).action;
+                    let u = a.step(x, StepStatus::Running).action;
                     assert!((-1.0..=1.0).contains(&u));
                     last = Some((x, u));
                 }
                 let (px, pu) = last.unwrap();
-                want += if end == StepKind::Lost {
+                want += if end == StepStatus::Lost {
                     a.failure_reward()
                 } else {
                     cost().reward(px, pu)
@@ -752,9 +741,9 @@ mod tests {
         let (seed, k) = (9, [-1.0, -0.5]);
         let mut a = agent(Algorithm::Gpomdp, k, seed);
         let x0 = [0.2, -0.1];
-        a.step(x0, StepKind::Running);
+        a.step(x0, StepStatus::Running);
         let u_sampled = mean(k, x0) + SIGMA * noise(seed, 0);
-        a.step(x0, StepKind::Lost);
+        a.step(x0, StepStatus::Lost);
         let g =
             LinearGaussian::new(Vector2::from(k), SIGMA).grad_log(&Vector2::from(x0), u_sampled);
         let alpha = *LearningParams::default().gpomdp.alpha.get(a.dof());
@@ -774,13 +763,13 @@ mod tests {
     fn observations_are_clipped_to_the_box_and_unusable_ones_abort_the_episode() {
         let (seed, k) = (4, [-1.0, -0.5]);
         let mut a = agent(Algorithm::Nac, k, seed);
-        a.step([2.0, -3.0], StepKind::Running);
+        a.step([2.0, -3.0], StepStatus::Running);
         let u_sampled = mean(k, [0.5, -0.5]) + SIGMA * noise(seed, 0);
-        a.step([0.4, -0.4], StepKind::Running);
+        a.step([0.4, -0.4], StepStatus::Running);
         assert!((nac(&a).z() - phi_hat(k, [0.5, -0.5], u_sampled)).norm() < 1e-10);
 
         let (a_mat, steps) = (*nac(&a).a(), a.steps());
-        let s = a.step([f64::NAN, 0.0], StepKind::Running);
+        let s = a.step([f64::NAN, 0.0], StepStatus::Running);
         assert_eq!(s.action, 0.0);
         let e = s.episode.unwrap();
         assert_eq!((e.end, e.failed, e.steps), (EpisodeEnd::Aborted, false, 1));
@@ -797,8 +786,8 @@ mod tests {
         let (seed, k) = (6, [-1.0, -0.5]);
         let mut a = agent(Algorithm::Nac, k, seed);
         let (x0, x1, x2) = ([0.3, 0.0], [0.25, -0.1], [0.2, -0.1]);
-        let u0 = a.step(x0, StepKind::Running).action;
-        a.step(x1, StepKind::Running);
+        let u0 = a.step(x0, StepStatus::Running).action;
+        a.step(x1, StepStatus::Running);
         let (a_mat, b_vec) = (*nac(&a).a(), *nac(&a).b());
         let u1 = a.pending.unwrap().u_applied;
         assert_eq!(a.skip(), 0.0);
@@ -814,8 +803,8 @@ mod tests {
         );
         assert_eq!(a.skip(), 0.0, "a second miss has nothing pending");
         // The episode goes on from the next observation.
-        let u2 = a.step(x2, StepKind::Running).action;
-        let e = a.step([0.15, -0.1], StepKind::TimeLimit).episode.unwrap();
+        let u2 = a.step(x2, StepStatus::Running).action;
+        let e = a.step([0.15, -0.1], StepStatus::TimeLimit).episode.unwrap();
         let want = cost().reward(x0, u0) + cost().reward(x1, u1) + cost().reward(x2, u2);
         assert!((e.return_ - want).abs() < 1e-12);
         assert_eq!((e.steps, a.steps()), (3, 3));

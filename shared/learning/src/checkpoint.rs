@@ -537,8 +537,9 @@ fn sync_dir(_dir: &Path) -> io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::agent::{Agent, StepKind};
+    use crate::agent::Agent;
     use config::Rewards;
+    use config::StepStatus;
 
     /// An agent that has learned something, so every field of its state is non-trivial.
     fn trained(dof: Dof, algorithm: Algorithm) -> AgentState {
@@ -548,22 +549,22 @@ mod tests {
         let mut x = [0.3, 0.0];
         for t in 0..500 {
             let kind = if t % 100 == 99 {
-                StepKind::TimeLimit
+                StepStatus::TimeLimit
             } else {
-                StepKind::Running
+                StepStatus::Running
             };
             let u = agent.step(x, kind).action;
             x = [
                 (0.95 * x[0] + 0.1 * u).clamp(-0.5, 0.5),
                 (0.5 * x[1] + 0.2 * u).clamp(-0.5, 0.5),
             ];
-            if kind == StepKind::TimeLimit {
+            if kind == StepStatus::TimeLimit {
                 x = [-0.3, 0.1];
             }
         }
         // Mid-episode: the trace is non-zero too.
-        agent.step(x, StepKind::Running);
-        agent.step(x, StepKind::Running);
+        agent.step(x, StepStatus::Running);
+        agent.step(x, StepStatus::Running);
         agent.checkpoint()
     }
 

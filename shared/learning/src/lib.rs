@@ -23,12 +23,11 @@ pub mod policy;
 #[cfg(test)]
 mod testkit;
 
-pub use agent::{
-    Agent, CableLearner, CableNac, EpisodeEnd, EpisodeSummary, Step, StepKind, failure_reward,
-};
+pub use agent::{Agent, CableLearner, CableNac, EpisodeEnd, EpisodeSummary, Step, failure_reward};
 pub use checkpoint::{
     AgentState, AgentStateError, Checkpoint, CheckpointError, Corruption, LearnerState,
 };
+pub use config::StepStatus;
 pub use gpomdp::{Gpomdp, GpomdpConfig};
 pub use learner::{Algorithm, Learner, PolicyLearner, Transition};
 pub use nac::{GradientHistory, Nac, NacConfig, NacStatistics};

@@ -27,7 +27,7 @@ pub mod ports;
 pub mod topics;
 
 pub use payload::{
-    CableObservationMsg, CableTruth, CameraFrameHeader, DofCommand, LearningStats, Stamp,
+    CableObservationMsg, CableTruth, CameraFrameHeader, DofCommand, LearningStats, Stamp, Stamped,
     StepStatus, ThrusterSetpoints, VehicleStateMsg,
 };
 pub use ports::{FrameInbox, FrameOutbox, Inbox, Outbox, PortError};

@@ -3,32 +3,7 @@
 
 use iceoryx2::prelude::*;
 
-/// What the simulator (or the vehicle) says of the current step of the episode.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-#[repr(u8)]
-pub enum StepStatus {
-    /// The episode goes on.
-    Running = 0,
-    /// The cable has left the image: the episode ended in failure.
-    Lost = 1,
-    /// The episode reached its last step.
-    TimeLimit = 2,
-}
-
-impl StepStatus {
-    pub fn from_u8(v: u8) -> Option<StepStatus> {
-        match v {
-            0 => Some(StepStatus::Running),
-            1 => Some(StepStatus::Lost),
-            2 => Some(StepStatus::TimeLimit),
-            _ => None,
-        }
-    }
-
-    pub fn is_terminal(self) -> bool {
-        self != StepStatus::Running
-    }
-}
+pub use config::StepStatus;
 
 /// The step a message belongs to. Copied unchanged from the vehicle state through every stage.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
@@ -253,3 +228,27 @@ pub struct LearningStats {
     pub learning: u8,
     pub _reserved: [u8; 2],
 }
+
+/// A message that belongs to one control step.
+pub trait Stamped {
+    fn stamp(&self) -> &Stamp;
+}
+
+macro_rules! stamped {
+    ($($t:ty),*) => {$(
+        impl Stamped for $t {
+            fn stamp(&self) -> &Stamp {
+                &self.stamp
+            }
+        }
+    )*};
+}
+
+stamped!(
+    VehicleStateMsg,
+    CameraFrameHeader,
+    CableObservationMsg,
+    DofCommand,
+    ThrusterSetpoints,
+    LearningStats
+);

@@ -21,10 +21,12 @@
 
 pub mod lockstep;
 mod node;
+mod steps;
 mod wait;
 
 pub use node::{
     CommonArgs, IoxSettings, Runtime, RuntimeError, init_tracing, remove_dead_nodes, run,
     shm_files, shm_leftovers,
 };
+pub use steps::{Answer, StepInput};
 pub use wait::{Flow, Stopped, Timer, Wake};

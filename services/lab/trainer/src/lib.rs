@@ -1,0 +1,105 @@
+//! Step one in one process: the service cores composed without IPC, and the experiments of the
+//! paper's simulation section (Fig. 5's learning curves, the learning-rate sweep, the LQR limit,
+//! Figs. 6 and 7's policy maps). The `trainer` binary is its command line.
+
+pub mod experiment;
+pub mod figures;
+pub mod progress;
+pub mod report;
+pub mod twin_world;
+pub mod world;
+
+use config::{ConfigError, LearningParams, ObservationLimits, PerDof, Preset, Scenario};
+use learning::Algorithm;
+use model::CableObservation;
+use simulator::{SimStep, Simulator};
+use std::path::Path;
+use vision::{SimulatedVision, VisionError};
+
+/// How the behaviours see the cable.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum EyesKind {
+    /// The geometric camera: the exact line and rates (ideal perception).
+    Ideal,
+    /// Rendered camera images and the vision system's perception, as on the vehicle.
+    Images,
+}
+
+/// The camera and perception stage of the loop.
+pub enum Eyes {
+    Ideal(ObservationLimits),
+    Images(Box<SimulatedVision>),
+}
+
+impl Eyes {
+    /// Forgets what was tracked (a new episode starts elsewhere).
+    pub fn reset(&mut self) {
+        if let Eyes::Images(vision) = self {
+            vision.reset();
+        }
+    }
+
+    /// What the behaviours observe at this step.
+    pub fn observe(&mut self, sim: &Simulator, step: &SimStep) -> CableObservation {
+        match self {
+            Eyes::Ideal(limits) => sim.camera().observe_state(&step.state, sim.cable(), limits),
+            Eyes::Images(vision) => vision.observe(&step.state),
+        }
+    }
+}
+
+/// Everything an experiment is configured by.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    pub scenario: Scenario,
+    pub learning: LearningParams,
+    pub eyes: EyesKind,
+}
+
+impl Setup {
+    /// The setup of `config_dir/scenario.toml` and `config_dir/learning.toml` with a preset applied.
+    pub fn load(config_dir: &Path, preset: Preset) -> Result<Setup, ConfigError> {
+        Ok(Setup {
+            scenario: config::load(&config_dir.join("scenario.toml"))?,
+            learning: config::load::<LearningParams>(&config_dir.join("learning.toml"))?
+                .with_preset(preset),
+            eyes: EyesKind::Ideal,
+        })
+    }
+
+    /// This setup seeing through `kind`; checks that the renderer and perception can be built.
+    pub fn with_eyes(mut self, kind: EyesKind) -> Result<Setup, VisionError> {
+        if kind == EyesKind::Images {
+            SimulatedVision::new(&self.scenario, 0)?;
+        }
+        self.eyes = kind;
+        Ok(self)
+    }
+
+    /// The perception stage for a run with this seed (the renderer's noise is its own stream).
+    pub fn eyes(&self, seed: u64) -> Eyes {
+        match self.eyes {
+            EyesKind::Ideal => Eyes::Ideal(self.scenario.observation.clone()),
+            EyesKind::Images => Eyes::Images(Box::new(
+                SimulatedVision::new(&self.scenario, config::derive_seed(seed, "render"))
+                    .expect("the vision configuration was checked by Setup::with_eyes"),
+            )),
+        }
+    }
+
+    /// Sets the learning rate of `algorithm`.
+    pub fn set_alpha(&mut self, algorithm: Algorithm, alpha: PerDof<f64>) {
+        match algorithm {
+            Algorithm::Nac => self.learning.nac.alpha = alpha,
+            Algorithm::Gpomdp => self.learning.gpomdp.alpha = alpha,
+        }
+    }
+
+    /// The learning rate of `algorithm`.
+    pub fn alpha(&self, algorithm: Algorithm) -> PerDof<f64> {
+        match algorithm {
+            Algorithm::Nac => self.learning.nac.alpha,
+            Algorithm::Gpomdp => self.learning.gpomdp.alpha,
+        }
+    }
+}

@@ -1,0 +1,282 @@
+//! Step two in one process: the twin composed with the very cores the vehicle endpoint runs as
+//! processes (perception, the sway and yaw behaviours, the surge controller, the thruster
+//! allocator), called in the mesh's order with no IPC, like `trainer::World` for step one. A frame
+//! the twin drops never reaches perception: that step gets no command, and the thrusters hold.
+
+use behaviour::{Behaviour, resume_seed};
+use config::{Dof, PerDof, Scenario, TwinParams, derive_seed};
+use learning::{Agent, Checkpoint, CheckpointError};
+use messages::{CableObservationMsg, CameraFrameHeader, LearningStats, Stamp, StepStatus};
+use perception::{Eyes, Observer};
+use surge_controller::SurgeController;
+use thruster_allocator::Allocator;
+use vehicle_twin::{Shot, Twin};
+use vision::VisionError;
+
+/// What one trial gave.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrialResult {
+    pub trial: u32,
+    /// Control steps (the twin's periods) in the trial.
+    pub steps: u32,
+    /// The cable left the image.
+    pub lost: bool,
+    /// Frames lost on the way (no command for them).
+    pub dropped: u32,
+    /// Frames in which perception did not find the cable although it was in view.
+    pub missed: u32,
+    /// Each behaviour's return over the trial (its reported episode return; the failure reward
+    /// included), and its transitions.
+    pub returns: PerDof<f64>,
+    pub transitions: PerDof<u32>,
+    /// Each policy's gain after the trial.
+    pub gains: PerDof<[f64; 2]>,
+    pub actor_updates: PerDof<u64>,
+}
+
+impl TrialResult {
+    /// A DOF's mean reward per transition.
+    pub fn per_step(&self, dof: Dof) -> f64 {
+        *self.returns.get(dof) / (*self.transitions.get(dof)).max(1) as f64
+    }
+}
+
+/// One step of a trial, for the state-trace figures (paper Figs. 8 to 11).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TracePoint {
+    pub trial: u32,
+    pub time_s: f64,
+    /// What the behaviours saw (perception's output; NaN for a dropped frame).
+    pub x_g: f64,
+    pub theta: f64,
+    /// What the mounted camera truly saw.
+    pub true_x_g: f64,
+    pub true_theta: f64,
+    /// The commands (0 for a dropped frame: none was given).
+    pub sway: f64,
+    pub yaw: f64,
+    pub surge: f64,
+}
+
+/// How the vehicle side sees the cable in the in-process world.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TwinEyes {
+    /// The twin's camera's true line (its mounting, its drops; no image effects).
+    Ideal,
+    /// Rendered images (the twin's harsher effects) and the vision system's perception.
+    Images,
+}
+
+/// The twin and the vehicle's cores in one loop.
+pub struct TwinWorld {
+    twin: Twin,
+    observer: Observer,
+    behaviours: PerDof<Behaviour>,
+    surge: SurgeController,
+    allocator: Allocator,
+    image: Vec<u8>,
+    trace: Option<Vec<TracePoint>>,
+}
+
+impl TwinWorld {
+    /// A world around existing agents (their learning switch as they come).
+    pub fn new(
+        scenario: &Scenario,
+        twin: &TwinParams,
+        agents: PerDof<Agent>,
+        eyes: TwinEyes,
+        seed: u64,
+    ) -> Result<Self, VisionError> {
+        let images = eyes == TwinEyes::Images;
+        let twin = Twin::new(scenario, twin, seed, images)?;
+        let observer = Observer::new(scenario, if images { Eyes::Images } else { Eyes::Ideal })?;
+        let (w, h) = twin.eye().size();
+        Ok(TwinWorld {
+            twin,
+            observer,
+            behaviours: PerDof {
+                sway: Behaviour::new(agents.sway),
+                yaw: Behaviour::new(agents.yaw),
+            },
+            surge: SurgeController::new(&scenario.surge, &scenario.model.surge),
+            allocator: Allocator::new(&scenario.thrusters),
+            image: if images {
+                vec![0; w as usize * h as usize]
+            } else {
+                Vec::new()
+            },
+            trace: None,
+        })
+    }
+
+    /// The world a vehicle-endpoint behaviour starts from with `--initial CHECKPOINT`: each DOF's
+    /// agent resumed from the step-one checkpoint, its exploration seeded as the service seeds it.
+    pub fn from_checkpoint(
+        scenario: &Scenario,
+        twin: &TwinParams,
+        checkpoint: &Checkpoint,
+        eyes: TwinEyes,
+        seed: u64,
+    ) -> Result<Self, FromCheckpointError> {
+        let agent = |dof: Dof| -> Result<Agent, FromCheckpointError> {
+            let state = checkpoint
+                .get(dof)
+                .cloned()
+                .ok_or(FromCheckpointError::Missing(dof))?;
+            let seed = resume_seed(derive_seed(seed, dof.name()), &state);
+            Agent::from_state(state, seed)
+                .map_err(|e| FromCheckpointError::Invalid(dof, e.to_string()))
+        };
+        let agents = PerDof {
+            sway: agent(Dof::Sway)?,
+            yaw: agent(Dof::Yaw)?,
+        };
+        Ok(TwinWorld::new(scenario, twin, agents, eyes, seed)?)
+    }
+
+    pub fn twin(&self) -> &Twin {
+        &self.twin
+    }
+
+    pub fn agent(&self, dof: Dof) -> &Agent {
+        self.behaviours.get(dof).agent()
+    }
+
+    /// Turns learning on or off for both behaviours.
+    pub fn set_learning(&mut self, on: bool) {
+        for dof in Dof::ALL {
+            let b = self.behaviours.get_mut(dof);
+            let mut agent = b.clone().into_agent();
+            agent.set_learning(on);
+            *b = Behaviour::new(agent);
+        }
+    }
+
+    /// The agents, e.g. to checkpoint them.
+    pub fn into_agents(self) -> PerDof<Agent> {
+        PerDof {
+            sway: self.behaviours.sway.into_agent(),
+            yaw: self.behaviours.yaw.into_agent(),
+        }
+    }
+
+    /// Records the next trials' state traces (see [`TwinWorld::take_trace`]).
+    pub fn record(&mut self, on: bool) {
+        self.trace = on.then(Vec::new);
+    }
+
+    pub fn take_trace(&mut self) -> Vec<TracePoint> {
+        self.trace.as_mut().map(std::mem::take).unwrap_or_default()
+    }
+
+    /// Runs the current trial to its end; the next call runs the next trial.
+    pub fn run_trial(&mut self) -> TrialResult {
+        let mut shot = self.twin.start();
+        let trial = shot.trial;
+        let mut missed = 0;
+        let mut stats: PerDof<Option<LearningStats>> = PerDof {
+            sway: None,
+            yaw: None,
+        };
+        loop {
+            if shot.dropped {
+                self.push_trace(&shot, None, [0.0; 3]);
+                shot = self.twin.advance(None).0;
+                continue;
+            }
+            let msg = self.perceive(&shot);
+            let obs = msg.observation();
+            if !obs.found && shot.truth.found == 1 {
+                missed += 1;
+            }
+            let sway = self.behaviours.sway.step(&msg);
+            let yaw = self.behaviours.yaw.step(&msg);
+            stats.sway = stats.sway.or(sway.stats);
+            stats.yaw = stats.yaw.or(yaw.stats);
+            let surge = self.surge.command(&obs);
+            let commands = [surge, sway.command.value, yaw.command.value];
+            self.push_trace(&shot, Some(&obs), commands);
+            if shot.status.is_terminal() {
+                let (next, end) = self.twin.advance(None);
+                debug_assert_eq!(next.trial, trial + 1);
+                let end = end.expect("a terminal frame closes its trial");
+                let get = |s: Option<LearningStats>, b: &Behaviour| {
+                    s.map_or(
+                        (
+                            0.0,
+                            0,
+                            b.agent().gain(),
+                            b.agent().learner().actor_updates(),
+                        ),
+                        |s| (s.episode_return, s.steps, s.gain, s.actor_updates),
+                    )
+                };
+                let (sr, ss, sg, su) = get(stats.sway, &self.behaviours.sway);
+                let (yr, ys, yg, yu) = get(stats.yaw, &self.behaviours.yaw);
+                return TrialResult {
+                    trial,
+                    steps: end.steps,
+                    lost: end.status == StepStatus::Lost,
+                    dropped: end.dropped,
+                    missed,
+                    returns: PerDof { sway: sr, yaw: yr },
+                    transitions: PerDof { sway: ss, yaw: ys },
+                    gains: PerDof { sway: sg, yaw: yg },
+                    actor_updates: PerDof { sway: su, yaw: yu },
+                };
+            }
+            let allocation = self.allocator.allocate(model::Forces {
+                surge,
+                sway: sway.command.value,
+                yaw: yaw.command.value,
+            });
+            shot = self.twin.advance(Some(allocation.setpoints.as_slice())).0;
+        }
+    }
+
+    /// The camera's frame of `shot` through perception: the observation message the behaviours get.
+    fn perceive(&mut self, shot: &Shot) -> CableObservationMsg {
+        let (w, h) = self.twin.eye().size();
+        let header = CameraFrameHeader {
+            stamp: Stamp::new(shot.seq, shot.time_ns(), shot.trial, shot.step, shot.status),
+            width: w,
+            height: h,
+            truth: shot.truth,
+        };
+        if !self.image.is_empty() {
+            self.twin
+                .render(&mut self.image)
+                .expect("the image buffer has the camera's size");
+        }
+        self.observer.observe(&header, &self.image).msg
+    }
+
+    fn push_trace(&mut self, shot: &Shot, obs: Option<&model::CableObservation>, c: [f64; 3]) {
+        if let Some(trace) = &mut self.trace {
+            trace.push(TracePoint {
+                trial: shot.trial,
+                time_s: shot.step as f64 * self.twin.sample_time_s(),
+                x_g: obs.map_or(f64::NAN, |o| o.x_g),
+                theta: obs.map_or(f64::NAN, |o| o.theta),
+                true_x_g: shot.truth.x_g,
+                true_theta: shot.truth.theta,
+                surge: c[0],
+                sway: c[1],
+                yaw: c[2],
+            });
+        }
+    }
+}
+
+/// Why a world could not start from a checkpoint.
+#[derive(Debug, thiserror::Error)]
+pub enum FromCheckpointError {
+    #[error("the checkpoint has no {0} entry")]
+    Missing(Dof),
+    #[error("the checkpoint's {0} entry cannot be resumed: {1}")]
+    Invalid(Dof, String),
+    #[error(transparent)]
+    Vision(#[from] VisionError),
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+}

@@ -1,0 +1,316 @@
+//! `vehicle-twin`: the vehicle's hardware for the vehicle endpoint, on a machine without a vehicle.
+//! Publishes the twin camera's frames on `cabletrack/twin/frame`, takes the thruster setpoints from
+//! `cabletrack/twin/thrusters`, and runs trials as on the real vehicle. Real time by default
+//! (5 Hz), `--speed K` times faster, or `--lockstep` with the mesh (see `vehicle_twin::driver`).
+
+use adapters::replay::{DiveWriter, ImageFormat};
+use adapters::twin::{TwinCameraPort, TwinThrusterPort};
+use anyhow::Context;
+use clap::Parser;
+use config::TwinParams;
+use runtime::lockstep::{Cause, Limits, Lockstep, Reaction};
+use runtime::{CommonArgs, Flow, Timer};
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+use vehicle_twin::Twin;
+use vehicle_twin::driver::{RealTime, Tick};
+use vehicle_twin::latency::{self, LatencyMeter};
+use vehicle_twin::twin::{Shot, TrialEnd};
+
+#[derive(Parser)]
+#[command(
+    version,
+    about = "The vehicle twin: the plant behind the vehicle endpoint's camera and thrusters, with the reality gap of config/twin.toml."
+)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// The twin's reality gap [default: CONFIG/twin.toml].
+    #[arg(long, value_name = "FILE")]
+    twin_config: Option<PathBuf>,
+    /// Run K times faster than real time (frames every 0.2/K s of wall time).
+    #[arg(long, default_value_t = 1.0, value_name = "K")]
+    speed: f64,
+    /// Lockstep with the mesh: publish a frame, wait for the setpoints answering it, integrate.
+    /// Deterministic for a seed, as fast as the mesh answers; --speed is not used.
+    #[arg(long)]
+    lockstep: bool,
+    /// Lockstep: re-publish an unanswered frame after this long.
+    #[arg(long, default_value_t = 100, value_name = "MS")]
+    resend_ms: u64,
+    /// Lockstep: once the mesh runs, a frame unanswered for this long is integrated without an
+    /// answer (the thrusters hold, then the watchdog stops them).
+    #[arg(long, default_value_t = 2000, value_name = "MS")]
+    deadline_ms: u64,
+    /// Stop after this many trials (0: run until SIGINT/SIGTERM).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    trials: u32,
+    /// Record the dive: every frame published, as a replayable dive (adapters::replay) in DIR.
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
+    /// Write every frame's camera-to-thruster latency here (CSV: seq,trial,step,latency_ns): from the
+    /// frame's publication to the arrival of the setpoints answering it.
+    #[arg(long, value_name = "FILE")]
+    latency: Option<PathBuf>,
+}
+
+/// Times each published frame until its answer (`--latency`).
+struct Latency {
+    meter: LatencyMeter,
+    out: std::io::BufWriter<std::fs::File>,
+    path: PathBuf,
+    samples: u64,
+    max: Duration,
+}
+
+impl Latency {
+    fn create(path: &std::path::Path) -> anyhow::Result<Latency> {
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("creating the latency file {}", path.display()))?;
+        let mut out = std::io::BufWriter::new(file);
+        writeln!(out, "{}", latency::HEADER)?;
+        Ok(Latency {
+            meter: LatencyMeter::new(),
+            out,
+            path: path.to_owned(),
+            samples: 0,
+            max: Duration::ZERO,
+        })
+    }
+
+    fn answered(&mut self, time_ns: u64) -> anyhow::Result<()> {
+        if let Some(s) = self.meter.answered(time_ns, Instant::now()) {
+            latency::write_sample(&mut self.out, &s)?;
+            self.samples += 1;
+            self.max = self.max.max(s.latency);
+        }
+        Ok(())
+    }
+
+    fn finish(mut self) -> anyhow::Result<()> {
+        self.out
+            .flush()
+            .with_context(|| format!("writing {}", self.path.display()))?;
+        tracing::info!(
+            file = %self.path.display(),
+            frames = self.samples,
+            max_us = self.max.as_micros() as u64,
+            "camera-to-thruster latencies written"
+        );
+        Ok(())
+    }
+}
+
+/// Publishes the twin's frames (and records them).
+struct Camera {
+    port: TwinCameraPort,
+    image: Vec<u8>,
+    size: (u32, u32),
+    recorder: Option<DiveWriter>,
+}
+
+impl Camera {
+    fn publish(
+        &mut self,
+        twin: &mut Twin,
+        shot: &Shot,
+        again: bool,
+        latency: &mut Option<Latency>,
+    ) -> anyhow::Result<()> {
+        twin.render(&mut self.image)?;
+        let meta = shot.meta(self.size.0, self.size.1);
+        self.port
+            .send(&meta, |out| out.copy_from_slice(&self.image))?;
+        // Timed from the send: rendering is the camera hardware's work, not the vehicle's.
+        if !again && let Some(l) = latency.as_mut() {
+            l.meter.published(shot, Instant::now());
+        }
+        if !again && let Some(r) = self.recorder.as_mut() {
+            r.write(&meta, &self.image)?;
+        }
+        Ok(())
+    }
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    runtime::run("vehicle-twin", &args.common, |rt| {
+        if !(args.speed.is_finite() && args.speed > 0.0) {
+            anyhow::bail!("--speed {} must be a number > 0", args.speed);
+        }
+        let path = args
+            .twin_config
+            .clone()
+            .unwrap_or_else(|| rt.config_dir().join("twin.toml"));
+        let params: TwinParams = config::load(&path)?;
+        let scenario = rt.scenario();
+        let twin = Twin::new(scenario, &params, rt.seed(), true)?;
+        let size = (scenario.camera.width, scenario.camera.height);
+        let len = size.0 as usize * size.1 as usize;
+        let thrusters = TwinThrusterPort::open(rt.node())?;
+        let recorder = match &args.record {
+            Some(dir) => Some(
+                DiveWriter::create(dir, size.0, size.1, true, ImageFormat::Pgm)
+                    .with_context(|| format!("cannot record the dive in {}", dir.display()))?,
+            ),
+            None => None,
+        };
+        let mut camera = Camera {
+            port: TwinCameraPort::open(rt.node(), len)?,
+            image: vec![0; len],
+            size,
+            recorder,
+        };
+        let period = Duration::from_secs_f64(scenario.timing.sample_time_s / args.speed);
+        tracing::info!(
+            config = %path.display(),
+            mode = if args.lockstep { "lockstep" } else { "clock" },
+            speed = args.speed,
+            trials = args.trials,
+            trial_steps = twin.steps_per_trial(),
+            record = ?args.record,
+            "ready"
+        );
+        let mut latency = args.latency.as_deref().map(Latency::create).transpose()?;
+        let mut log = TrialLog::new(twin.steps_per_trial());
+        if args.lockstep {
+            let limits = Limits::new(
+                Duration::from_millis(args.resend_ms),
+                Duration::from_millis(args.deadline_ms),
+            );
+            let (mut lockstep, first) = Lockstep::start(twin, limits, args.trials, Instant::now());
+            let mut act = |lockstep: &mut Lockstep<Twin>,
+                           latency: &mut Option<Latency>,
+                           r: Reaction<Twin>|
+             -> anyhow::Result<Flow> {
+                match r {
+                    Reaction::Idle => {}
+                    Reaction::Resend {
+                        step,
+                        waiting_for_mesh,
+                    } => {
+                        if let Some(waited) = waiting_for_mesh {
+                            tracing::info!(
+                                seq = step.seq,
+                                waited_s = waited.as_secs(),
+                                frame_sources = camera.port.subscribers(),
+                                "waiting for the mesh: no setpoints yet"
+                            );
+                        }
+                        camera.publish(lockstep.plant_mut(), &step, true, latency)?;
+                    }
+                    Reaction::Publish {
+                        next,
+                        passed,
+                        ended,
+                        cause,
+                        ..
+                    } => {
+                        log.closed(&ended, passed, cause == Cause::Deadline, &next);
+                        camera.publish(lockstep.plant_mut(), &next, false, latency)?;
+                    }
+                    Reaction::Finished { closed, ended, .. } => {
+                        log.closed(&ended, 0, false, &closed);
+                        return Ok(Flow::Stop);
+                    }
+                }
+                Ok(Flow::Continue)
+            };
+            act(&mut lockstep, &mut latency, first)?;
+            rt.serve(
+                &[thrusters.listener()],
+                Timer::Timeout(limits.tick()),
+                |_| {
+                    while let Some(sp) = thrusters.receive()? {
+                        if let Some(l) = latency.as_mut() {
+                            l.answered(sp.stamp.time_ns)?;
+                        }
+                        let r = lockstep.on_answer(sp.stamp.time_ns, sp.as_slice(), Instant::now());
+                        if act(&mut lockstep, &mut latency, r)? == Flow::Stop {
+                            return Ok(Flow::Stop);
+                        }
+                    }
+                    let r = lockstep.on_time(Instant::now());
+                    act(&mut lockstep, &mut latency, r)
+                },
+            )?;
+        } else {
+            let mut clock = RealTime::new(twin, period, args.trials);
+            // The interval timer wakes the loop; the clock decides when a period is due (a wake-up
+            // for setpoints and the timer's may coincide).
+            let tick = (period / 4).max(Duration::from_millis(1));
+            rt.serve(&[thrusters.listener()], Timer::Interval(tick), |_| {
+                while let Some(sp) = thrusters.receive()? {
+                    if let Some(l) = latency.as_mut() {
+                        l.answered(sp.stamp.time_ns)?;
+                    }
+                    clock.on_setpoints(sp.as_slice());
+                }
+                match clock.on_time(Instant::now(), camera.port.subscribers() > 0) {
+                    Tick::Publish { shot, ended, .. } => {
+                        log.closed(&ended, 0, false, &shot);
+                        camera.publish(clock.twin_mut(), &shot, false, &mut latency)?;
+                    }
+                    Tick::Finished { ended } => {
+                        let shot = *clock.twin().current().expect("started");
+                        log.closed(&ended, 0, false, &shot);
+                        return Ok(Flow::Stop);
+                    }
+                    Tick::Idle => {}
+                }
+                Ok(Flow::Continue)
+            })?;
+        }
+        if let Some(l) = latency.take() {
+            l.finish()?;
+        }
+        if let Some(r) = camera.recorder.take() {
+            let dir = r.dir().to_owned();
+            let frames = r.finish()?;
+            tracing::info!(dir = %dir.display(), frames, "dive recorded");
+        }
+        Ok(())
+    })
+}
+
+/// Logs trial ends and unanswered frames.
+struct TrialLog {
+    steps_per_trial: u32,
+    started: Instant,
+    frames: u64,
+}
+
+impl TrialLog {
+    fn new(steps_per_trial: u32) -> Self {
+        TrialLog {
+            steps_per_trial,
+            started: Instant::now(),
+            frames: 0,
+        }
+    }
+
+    fn closed(&mut self, ended: &[TrialEnd], passed: u32, deadline: bool, shot: &Shot) {
+        self.frames += 1 + passed as u64;
+        if deadline {
+            tracing::warn!(
+                seq = shot.seq,
+                "no setpoints within the deadline: the thrusters hold"
+            );
+        }
+        for end in ended {
+            let how = end.status.describe();
+            tracing::info!(
+                trial = end.trial,
+                steps = end.steps,
+                of = self.steps_per_trial,
+                end = how,
+                dropped_frames = end.dropped,
+                frames_per_s = (self.frames as f64 / self.started.elapsed().as_secs_f64().max(1e-9))
+                    .round() as u64,
+                "trial ended"
+            );
+        }
+    }
+}

@@ -1,0 +1,632 @@
+//! The twin as the vehicle's hardware sees it: a camera taking a frame every control period of the
+//! plant, thrusters taking setpoints, and trials as on the real vehicle. No IPC: the `vehicle-twin`
+//! binary publishes what [`Twin`] says and feeds it the setpoints it receives; [`crate::TwinWorld`]
+//! composes it with the vehicle's service cores in one process.
+//!
+//! **Frames.** A frame is taken every `sample_time_s` of twin time ([`Shot`]): the device counts
+//! every frame (`seq`, from 1), so a dropped frame leaves a gap. Its camera is mounted off the
+//! centre of rotation; its image is rendered with the twin's harsher [`config::RenderParams`]. A frame
+//! is dropped with the configured probability, except a trial's last one (its status is how the
+//! vehicle side learns that the trial ended).
+//!
+//! **Thrusters.** The setpoints answering a frame drive the plant until the next frame. Without an
+//! answer (a dropped frame, a late mesh) the thrusters hold the last setpoints, until the watchdog
+//! stops them after `watchdog_s` of twin time without any.
+//!
+//! **Trials.** A trial lasts `duration_s` of twin time (its last step has status `TimeLimit`) or
+//! ends when the cable leaves the image (`Lost`). The answer to a trial's last frame is not applied:
+//! the vehicle is repositioned (a random pose with the cable in view, velocities and thrust 0) and
+//! the next trial's first frame (step 0) is taken.
+
+use crate::plant::TwinPlant;
+use adapters::FrameMeta;
+use config::{ResetParams, Scenario, TwinParams, derive_seed};
+use messages::{CableTruth, StepStatus};
+use model::{Cable, Camera, PoseRate, VehicleState};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use vision::{Renderer, VisionError};
+
+/// One frame the twin's camera takes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Shot {
+    /// The camera's frame counter, from 1; dropped frames count.
+    pub seq: u64,
+    /// Twin time since the start (s).
+    pub time_s: f64,
+    /// Trials count from 0, steps from 0 at the trial's start.
+    pub trial: u32,
+    pub step: u32,
+    pub status: StepStatus,
+    /// The plant when the frame was taken, and its pose's rate (the current included).
+    pub state: VehicleState,
+    pub rate: PoseRate,
+    /// What the mounted camera truly sees (the line and its exact rates).
+    pub truth: CableTruth,
+    /// Lost on the way: the vehicle side never sees this frame.
+    pub dropped: bool,
+}
+
+impl Shot {
+    /// Twin time in nanoseconds (the frames' clock).
+    pub fn time_ns(&self) -> u64 {
+        (self.time_s * 1e9).round() as u64
+    }
+
+    /// The frame's metadata as the camera adapters carry it.
+    pub fn meta(&self, width: u32, height: u32) -> FrameMeta {
+        FrameMeta {
+            seq: self.seq,
+            time_ns: self.time_ns(),
+            width,
+            height,
+            trial: self.trial,
+            step: self.step,
+            status: self.status,
+            truth: Some(self.truth),
+        }
+    }
+}
+
+/// The twin's camera: the mounted geometry, the renderer, the frame drops.
+pub struct TwinEye {
+    camera: Camera,
+    cable: Cable,
+    limits: config::ObservationLimits,
+    renderer: Option<Renderer>,
+    drop_rate: f64,
+    drops: StdRng,
+    width: u32,
+    height: u32,
+}
+
+impl TwinEye {
+    /// The twin's camera; `images` builds the renderer (without it, frames carry no image).
+    pub fn new(
+        scenario: &Scenario,
+        twin: &TwinParams,
+        seed: u64,
+        images: bool,
+    ) -> Result<Self, VisionError> {
+        let params = mounted(scenario, twin);
+        let renderer = if images {
+            Some(Renderer::new(
+                &twin.render,
+                &params,
+                &scenario.cable,
+                derive_seed(seed, "twin/render"),
+            )?)
+        } else {
+            None
+        };
+        Ok(TwinEye {
+            camera: Camera::new(&params),
+            cable: Cable::new(&scenario.cable),
+            limits: scenario.observation.clone(),
+            renderer,
+            drop_rate: twin.frames.dropped.rate(),
+            drops: StdRng::seed_from_u64(derive_seed(seed, "twin/drops")),
+            width: scenario.camera.width,
+            height: scenario.camera.height,
+        })
+    }
+
+    /// The mounted camera's geometry.
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    pub fn cable(&self) -> &Cable {
+        &self.cable
+    }
+
+    pub fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    pub fn has_images(&self) -> bool {
+        self.renderer.is_some()
+    }
+
+    /// What the camera truly sees from a state moving at `rate`.
+    pub fn truth(&self, state: &VehicleState, rate: &PoseRate) -> CableTruth {
+        CableTruth::from(
+            &self
+                .camera
+                .observe(&state.pose, rate, &self.cable, &self.limits),
+        )
+    }
+
+    /// Draws whether the next frame is lost (one draw per frame, terminal or not, so the drops of
+    /// a seed do not depend on when trials end).
+    fn draw_drop(&mut self) -> bool {
+        let u: f64 = self.drops.random();
+        u < self.drop_rate
+    }
+
+    /// Renders `shot`'s image into `out` (`width * height` bytes). The noise is the frame's own
+    /// (its `seq`), so a re-sent frame is the same image.
+    pub fn render(&mut self, shot: &Shot, out: &mut [u8]) -> Result<(), VisionError> {
+        match &mut self.renderer {
+            Some(r) => r.render(&shot.state.pose, &shot.rate, shot.seq - 1, out),
+            None => Err(VisionError::Config {
+                what: "twin camera",
+                invalid: config::Invalid::new("images", false, "the twin was built without images"),
+            }),
+        }
+    }
+}
+
+/// The scenario's camera, mounted where the twin's is.
+pub fn mounted(scenario: &Scenario, twin: &TwinParams) -> config::CameraParams {
+    let [x, y] = twin.camera.offset();
+    config::CameraParams {
+        mount_x_m: x,
+        mount_y_m: y,
+        ..scenario.camera.clone()
+    }
+}
+
+/// How the twin ended a trial.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrialEnd {
+    pub trial: u32,
+    /// Control steps taken in the trial.
+    pub steps: u32,
+    pub status: StepStatus,
+    /// Frames of the trial lost on the way.
+    pub dropped: u32,
+}
+
+/// The vehicle twin: plant, camera, thrusters' hold and watchdog, trials.
+pub struct Twin {
+    plant: TwinPlant,
+    eye: TwinEye,
+    reposition: ResetParams,
+    resets: StdRng,
+    /// The cycle of start poses (empty: a new pose every trial).
+    cycle: Vec<model::Pose>,
+    cycle_len: usize,
+    dt: f64,
+    steps_per_trial: u32,
+    watchdog_s: f64,
+    held: Vec<f64>,
+    /// Twin time since the last setpoints arrived.
+    since_answer_s: f64,
+    current: Option<Shot>,
+    trial_dropped: u32,
+    dropped: u64,
+}
+
+impl Twin {
+    /// A twin of `scenario` with the reality gap of `twin`, its random streams (repositions, frame
+    /// drops, image noise) drawn from `seed`. Call [`Twin::start`] for the first frame.
+    pub fn new(
+        scenario: &Scenario,
+        twin: &TwinParams,
+        seed: u64,
+        images: bool,
+    ) -> Result<Self, VisionError> {
+        let dt = scenario.timing.sample_time_s;
+        let plant = TwinPlant::new(scenario, twin);
+        let n = plant.layout().len();
+        Ok(Twin {
+            eye: TwinEye::new(scenario, twin, seed, images)?,
+            plant,
+            reposition: twin.trials.reposition.clone(),
+            resets: StdRng::seed_from_u64(derive_seed(seed, "twin/reset")),
+            cycle: Vec::new(),
+            cycle_len: twin.trials.cycle as usize,
+            dt,
+            steps_per_trial: ((twin.trials.duration_s / dt).round() as u32).max(1),
+            watchdog_s: twin.thrusters.watchdog_s,
+            held: vec![0.0; n],
+            since_answer_s: 0.0,
+            current: None,
+            trial_dropped: 0,
+            dropped: 0,
+        })
+    }
+
+    pub fn plant(&self) -> &TwinPlant {
+        &self.plant
+    }
+
+    pub fn eye(&self) -> &TwinEye {
+        &self.eye
+    }
+
+    pub fn eye_mut(&mut self) -> &mut TwinEye {
+        &mut self.eye
+    }
+
+    /// Control steps in a full trial.
+    pub fn steps_per_trial(&self) -> u32 {
+        self.steps_per_trial
+    }
+
+    pub fn sample_time_s(&self) -> f64 {
+        self.dt
+    }
+
+    /// Thrusters in the layout.
+    pub fn thrusters(&self) -> usize {
+        self.held.len()
+    }
+
+    /// Frames lost so far.
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+
+    /// The frame being answered, once started.
+    pub fn current(&self) -> Option<&Shot> {
+        self.current.as_ref()
+    }
+
+    /// Takes the first trial's first frame (again, if called twice: it restarts nothing).
+    pub fn start(&mut self) -> Shot {
+        if let Some(s) = self.current {
+            return s;
+        }
+        self.begin_trial(0, 1, 0.0)
+    }
+
+    /// The next frame: the current one's answer (`None`: none arrived) drives the plant for one
+    /// period; after a trial's last frame the next trial starts instead. Returns the new frame and,
+    /// when a trial just closed, how it ended.
+    pub fn advance(&mut self, answer: Option<&[f64]>) -> (Shot, Option<TrialEnd>) {
+        let Some(now) = self.current else {
+            return (self.start(), None);
+        };
+        let seq = now.seq + 1;
+        let time_s = now.time_s + self.dt;
+        if now.status.is_terminal() {
+            let end = TrialEnd {
+                trial: now.trial,
+                steps: now.step,
+                status: now.status,
+                dropped: self.trial_dropped,
+            };
+            return (self.begin_trial(now.trial + 1, seq, time_s), Some(end));
+        }
+        match answer {
+            Some(sp) => {
+                for (h, v) in self
+                    .held
+                    .iter_mut()
+                    .zip(sp.iter().chain(std::iter::repeat(&0.0)))
+                {
+                    *h = *v;
+                }
+                self.since_answer_s = 0.0;
+            }
+            None => self.since_answer_s += self.dt,
+        }
+        if self.since_answer_s >= self.watchdog_s - 1e-9 {
+            self.held.iter_mut().for_each(|h| *h = 0.0);
+        }
+        self.plant.step(&self.held, self.dt);
+        let step = now.step + 1;
+        let state = *self.plant.state();
+        let status = if self.eye.camera.view(&state.pose, &self.eye.cable).is_none() {
+            StepStatus::Lost
+        } else if step >= self.steps_per_trial {
+            StepStatus::TimeLimit
+        } else {
+            StepStatus::Running
+        };
+        (self.take(seq, time_s, now.trial, step, status), None)
+    }
+
+    /// Where trial `trial` starts: a new random pose, or the next of the cycle.
+    fn start_pose(&mut self, trial: u32) -> model::Pose {
+        let k = if self.cycle_len > 0 {
+            trial as usize % self.cycle_len
+        } else {
+            0
+        };
+        if self.cycle_len > 0 && k < self.cycle.len() {
+            return self.cycle[k];
+        }
+        let resets = &mut self.resets;
+        let pose = model::start_pose(&self.eye.camera, &self.eye.cable, &self.reposition, |r| {
+            resets.random_range(r)
+        });
+        if self.cycle_len > 0 {
+            self.cycle.push(pose);
+        }
+        pose
+    }
+
+    fn begin_trial(&mut self, trial: u32, seq: u64, time_s: f64) -> Shot {
+        let pose = self.start_pose(trial);
+        self.plant.place(VehicleState {
+            pose,
+            ..Default::default()
+        });
+        self.held.iter_mut().for_each(|h| *h = 0.0);
+        self.since_answer_s = 0.0;
+        self.trial_dropped = 0;
+        self.take(seq, time_s, trial, 0, StepStatus::Running)
+    }
+
+    fn take(&mut self, seq: u64, time_s: f64, trial: u32, step: u32, status: StepStatus) -> Shot {
+        let state = *self.plant.state();
+        let rate = self.plant.pose_rate();
+        let lost = self.eye.draw_drop();
+        let dropped = lost && !status.is_terminal();
+        if dropped {
+            self.dropped += 1;
+            self.trial_dropped += 1;
+        }
+        let shot = Shot {
+            seq,
+            time_s,
+            trial,
+            step,
+            status,
+            state,
+            rate,
+            truth: self.eye.truth(&state, &rate),
+            dropped,
+        };
+        self.current = Some(shot);
+        shot
+    }
+
+    /// Renders the current frame's image into `out`.
+    pub fn render(&mut self, out: &mut [u8]) -> Result<(), VisionError> {
+        let shot = self.current.expect("the twin has started");
+        self.eye.render(&shot, out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn only(edit: impl FnOnce(&mut TwinParams)) -> TwinParams {
+        let mut t = TwinParams::ideal();
+        edit(&mut t);
+        t
+    }
+
+    #[test]
+    fn frames_are_counted_timed_and_trials_end_and_restart() {
+        let s = Scenario::default();
+        let mut t = only(|t| t.trials.duration_s = 1.0);
+        t.frames.dropped.enabled = false;
+        let mut twin = Twin::new(&s, &t, 3, false).unwrap();
+        assert_eq!(twin.steps_per_trial(), 5);
+        let first = twin.start();
+        assert_eq!((first.seq, first.trial, first.step), (1, 0, 0));
+        assert_eq!(first.status, StepStatus::Running);
+        assert_eq!(first.state.velocity, model::Velocity::default());
+        assert_eq!(
+            first.truth.found, 1,
+            "the cable is in view at a trial's start"
+        );
+        let mut last = first;
+        let mut ends = Vec::new();
+        for _ in 0..12 {
+            let (shot, end) = twin.advance(Some(&[0.0; 3]));
+            assert_eq!(shot.seq, last.seq + 1);
+            assert!((shot.time_s - last.time_s - 0.2).abs() < 1e-12);
+            ends.extend(end);
+            last = shot;
+        }
+        // Trial 0: steps 0..=5 (seq 1..=6, the 6th a time limit); trial 1: seq 7..=12; trial 2.
+        assert_eq!(
+            ends.iter()
+                .map(|e| (e.trial, e.steps, e.status))
+                .collect::<Vec<_>>(),
+            vec![(0, 5, StepStatus::TimeLimit), (1, 5, StepStatus::TimeLimit)]
+        );
+        assert_eq!((last.seq, last.trial, last.step), (13, 2, 0));
+    }
+
+    /// With a cycle of N, trial k starts where trial k - N started; without, every start is new.
+    #[test]
+    fn trials_cycle_through_their_start_poses() {
+        let s = Scenario::default();
+        let starts = |cycle: u32| {
+            let mut t = TwinParams::default();
+            t.trials.duration_s = 0.4;
+            t.trials.cycle = cycle;
+            t.frames.dropped.enabled = false;
+            let mut twin = Twin::new(&s, &t, 9, false).unwrap();
+            let mut poses = vec![twin.start().state.pose];
+            while poses.len() < 12 {
+                if let (shot, Some(_)) = twin.advance(Some(&[0.0; 3])) {
+                    poses.push(shot.state.pose);
+                }
+            }
+            poses
+        };
+        let cycled = starts(5);
+        for k in 5..12 {
+            assert_eq!(cycled[k], cycled[k - 5], "trial {k}");
+        }
+        assert!((1..5).all(|k| cycled[k] != cycled[0]));
+        let fresh = starts(0);
+        assert_eq!(fresh[..5], cycled[..5], "the same draws");
+        assert!((5..12).all(|k| fresh[k] != fresh[k - 5]));
+    }
+
+    #[test]
+    fn a_trial_ends_when_the_cable_leaves_the_image() {
+        let s = Scenario::default();
+        let mut twin = Twin::new(&s, &TwinParams::ideal(), 1, false).unwrap();
+        twin.start();
+        let mut shot = twin.start();
+        while shot.status == StepStatus::Running {
+            shot = twin.advance(Some(&[0.0, 0.0, 1.0])).0;
+        }
+        assert_eq!(shot.status, StepStatus::Lost);
+        assert_eq!(shot.truth.found, 0);
+        let (next, end) = twin.advance(Some(&[1.0; 3]));
+        assert_eq!(end.unwrap().status, StepStatus::Lost);
+        assert_eq!((next.trial, next.step), (1, 0));
+        assert_eq!(
+            twin.plant().thrust(),
+            &[0.0; 3],
+            "repositioned with the thrusters stopped"
+        );
+    }
+
+    /// Without answers the thrusters hold the last setpoints, then the watchdog stops them.
+    #[test]
+    fn the_thrusters_hold_then_the_watchdog_stops_them() {
+        let s = Scenario::default();
+        let t = TwinParams::ideal();
+        let mut twin = Twin::new(&s, &t, 1, false).unwrap();
+        twin.start();
+        twin.advance(Some(&[0.0, 0.0, 0.3]));
+        assert_eq!(twin.plant().thrust()[2], 0.3);
+        let periods = (t.thrusters.watchdog_s / 0.2).round() as usize;
+        for k in 1..periods {
+            twin.advance(None);
+            assert_eq!(
+                twin.plant().thrust()[2],
+                0.3,
+                "held after {k} missing answers"
+            );
+        }
+        twin.advance(None);
+        assert_eq!(twin.plant().thrust()[2], 0.0, "stopped by the watchdog");
+        twin.advance(Some(&[0.0, 0.0, 0.1]));
+        assert_eq!(twin.plant().thrust()[2], 0.1);
+    }
+
+    /// Frames are dropped at the configured rate, never a trial's last; off, none is.
+    #[test]
+    fn frames_are_dropped_at_the_configured_rate() {
+        let s = Scenario::default();
+        let mut t = only(|t| t.frames.dropped.enabled = true);
+        t.frames.dropped.probability = 0.1;
+        t.trials.duration_s = 4.0;
+        let mut twin = Twin::new(&s, &t, 5, false).unwrap();
+        twin.start();
+        let n = 20_000;
+        let (mut dropped, mut terminal) = (0, 0);
+        for _ in 0..n {
+            let (shot, _) = twin.advance(Some(&[0.0, 0.0, 0.0]));
+            if shot.status.is_terminal() {
+                terminal += 1;
+                assert!(!shot.dropped, "a trial's last frame is never dropped");
+            }
+            dropped += shot.dropped as u64;
+        }
+        assert_eq!(dropped, twin.dropped());
+        // Binomial: the rate over the frames that may drop, within 4 standard deviations.
+        let m = (n - terminal) as f64;
+        let rate = dropped as f64 / m;
+        let sd = (0.1 * 0.9 / m).sqrt();
+        assert!((rate - 0.1).abs() < 4.0 * sd, "rate {rate}");
+        let mut off = Twin::new(&s, &TwinParams::ideal(), 5, false).unwrap();
+        off.start();
+        assert!((0..2000).all(|_| !off.advance(Some(&[0.0; 3])).0.dropped));
+    }
+
+    /// The camera mounted to starboard sees a centred cable to the left; mounted forward, it moves
+    /// across the image when the vehicle turns.
+    #[test]
+    fn the_off_centre_camera_shifts_x_g() {
+        let s = Scenario::default();
+        let floor_width = 2.0 * 30f64.to_radians().tan();
+        let t = only(|t| t.camera.enabled = true);
+        let over_the_cable = VehicleState::default();
+        let still = PoseRate::default();
+        let eye = TwinEye::new(&s, &t, 1, false).unwrap();
+        let centred = TwinEye::new(&s, &TwinParams::ideal(), 1, false).unwrap();
+        let shifted = eye.truth(&over_the_cable, &still);
+        assert!(centred.truth(&over_the_cable, &still).x_g.abs() < 1e-12);
+        assert!(
+            (shifted.x_g + t.camera.mount_y_m / floor_width).abs() < 1e-9,
+            "{}",
+            shifted.x_g
+        );
+        // Turning to starboard at r: the forward-mounted camera sweeps to starboard at
+        // mount_x * r, so the cable moves left: dx_g/dt = -mount_x r / floor width.
+        let r = 0.05;
+        let turning = PoseRate { psi: r, ..still };
+        let rate = eye.truth(&over_the_cable, &turning).x_g_rate;
+        let want = -t.camera.mount_x_m * r / floor_width;
+        assert!((rate - want).abs() < 1e-3 * want.abs(), "{rate} vs {want}");
+        assert!(centred.truth(&over_the_cable, &turning).x_g_rate.abs() < 1e-9);
+    }
+
+    /// The twin's camera renders with its own effects: noise that changes from frame to frame, the
+    /// lamp's fall-off to the corners; with the image effects off, a clean, steady image.
+    #[test]
+    fn the_twin_camera_renders_its_own_image_effects() {
+        let s = Scenario::default();
+        let render = |params: &TwinParams, seq: u64| {
+            let mut eye = TwinEye::new(&s, params, 1, true).unwrap();
+            let state = VehicleState::default();
+            let shot = Shot {
+                seq,
+                time_s: 0.0,
+                trial: 0,
+                step: 0,
+                status: StepStatus::Running,
+                state,
+                rate: PoseRate::default(),
+                truth: eye.truth(&state, &PoseRate::default()),
+                dropped: false,
+            };
+            let mut out = vec![0u8; 320 * 240];
+            eye.render(&shot, &mut out).unwrap();
+            out
+        };
+        let diff_sd = |a: &[u8], b: &[u8]| {
+            let d: Vec<f64> = a
+                .iter()
+                .zip(b)
+                .map(|(&x, &y)| x as f64 - y as f64)
+                .collect();
+            let m = d.iter().sum::<f64>() / d.len() as f64;
+            (d.iter().map(|v| (v - m).powi(2)).sum::<f64>() / d.len() as f64).sqrt()
+        };
+        let corner_vs_centre = |img: &[u8]| {
+            let px = |i: usize, j: usize| img[j * 320 + i] as f64;
+            let corners = (px(2, 2) + px(317, 2) + px(2, 237) + px(317, 237)) / 4.0;
+            corners / px(100, 120)
+        };
+        let twin = TwinParams::default();
+        let (a, b) = (render(&twin, 1), render(&twin, 2));
+        // Two frames' noise: sqrt(2) times the sensor's.
+        let sd = diff_sd(&a, &b) / 2f64.sqrt();
+        assert!((sd - twin.render.noise.std_dn).abs() < 1.5, "noise {sd}");
+        let clean = TwinParams::ideal();
+        let (c, d) = (render(&clean, 1), render(&clean, 2));
+        assert_eq!(c, d, "no noise");
+        let mut no_noise = TwinParams::default();
+        no_noise.render.noise.enabled = false;
+        assert_eq!(render(&no_noise, 1), render(&no_noise, 2));
+        assert!(
+            corner_vs_centre(&render(&no_noise, 1)) < 0.8,
+            "darker corners"
+        );
+        assert!((corner_vs_centre(&c) - 1.0).abs() < 1e-9, "even light");
+    }
+
+    #[test]
+    fn the_same_seed_gives_the_same_twin() {
+        let s = Scenario::default();
+        let t = TwinParams::default();
+        let run = |seed| {
+            let mut twin = Twin::new(&s, &t, seed, false).unwrap();
+            twin.start();
+            (0..600)
+                .map(|k| {
+                    twin.advance(Some(&[0.3, 0.2, 0.1 * ((k % 7) as f64 - 3.0)]))
+                        .0
+                })
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(run(4), run(4));
+        assert_ne!(run(4), run(5));
+    }
+}

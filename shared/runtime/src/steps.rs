@@ -1,0 +1,112 @@
+//! Serving one input topic in lockstep: each step's message goes through the service's core once,
+//! a repeated step gets the answer already computed, an older step is dropped. The loop every
+//! single-input service (camera, perception, the behaviours, the surge controller) would otherwise
+//! write out itself.
+
+use crate::Runtime;
+use crate::lockstep::{Once, Outcome};
+use crate::wait::{Flow, Stopped, Timer};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::prelude::ipc;
+use messages::ports::Payload;
+use messages::{CameraFrameHeader, FrameInbox, Inbox, PortError, Stamp, Stamped};
+
+/// An input a service answers step by step.
+pub trait StepInput {
+    /// What the core sees of one message (for frames: borrowed from shared memory, not copied).
+    type Msg<'a>
+    where
+        Self: 'a;
+    /// The listener notified when a message arrives.
+    fn listener(&self) -> &Listener<ipc::Service>;
+    /// Takes the next unread message, if any, and hands it to `f` with its stamp.
+    fn next_with<R>(
+        &self,
+        f: impl FnOnce(&Stamp, Self::Msg<'_>) -> R,
+    ) -> Result<Option<R>, PortError>;
+}
+
+impl<P: Payload + Stamped> StepInput for Inbox<P> {
+    type Msg<'a> = &'a P;
+
+    fn listener(&self) -> &Listener<ipc::Service> {
+        Inbox::listener(self)
+    }
+
+    fn next_with<R>(
+        &self,
+        f: impl FnOnce(&Stamp, Self::Msg<'_>) -> R,
+    ) -> Result<Option<R>, PortError> {
+        Ok(self.receive()?.map(|m| f(m.stamp(), &m)))
+    }
+}
+
+impl StepInput for FrameInbox {
+    type Msg<'a> = (&'a CameraFrameHeader, &'a [u8]);
+
+    fn listener(&self) -> &Listener<ipc::Service> {
+        FrameInbox::listener(self)
+    }
+
+    fn next_with<R>(
+        &self,
+        f: impl FnOnce(&Stamp, Self::Msg<'_>) -> R,
+    ) -> Result<Option<R>, PortError> {
+        self.receive_with(|header, image| f(&header.stamp, (header, image)))
+    }
+}
+
+/// A step's answer, to send.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Answer<'a, O> {
+    /// A new step: the core just computed it.
+    New(&'a O),
+    /// The step answered last, asked again (a re-send): the same answer, the core not called.
+    Again(&'a O),
+}
+
+impl<'a, O> Answer<'a, O> {
+    pub fn output(&self) -> &'a O {
+        match self {
+            Answer::New(o) | Answer::Again(o) => o,
+        }
+    }
+}
+
+impl Runtime {
+    /// Serves `input` until a termination signal (or `send` says stop): every message in order; a
+    /// new step through `core`, whose output goes to `send` as [`Answer::New`]; the step answered
+    /// last, again, as [`Answer::Again`]; an older step dropped. `state` (the service's core, say)
+    /// is lent to both in turn.
+    pub fn serve_steps<I: StepInput, S, O: Clone>(
+        &self,
+        input: &I,
+        state: &mut S,
+        mut core: impl FnMut(&mut S, I::Msg<'_>) -> anyhow::Result<O>,
+        mut send: impl FnMut(&mut S, Answer<'_, O>) -> anyhow::Result<Flow>,
+    ) -> anyhow::Result<Stopped> {
+        let mut once = Once::<O>::new();
+        self.serve(&[input.listener()], Timer::None, |_| {
+            loop {
+                let answered = input.next_with(|stamp, msg| {
+                    let seq = stamp.seq;
+                    once.step(seq, || core(state, msg)).map(|o| (seq, o))
+                })?;
+                let Some(answered) = answered else {
+                    return Ok(Flow::Continue);
+                };
+                let flow = match answered? {
+                    (_, Outcome::Fresh(o)) => send(state, Answer::New(&o))?,
+                    (_, Outcome::Repeat(o)) => send(state, Answer::Again(&o))?,
+                    (seq, Outcome::Stale) => {
+                        tracing::debug!(seq, last = ?once.last_seq(), "an older step: dropped");
+                        Flow::Continue
+                    }
+                };
+                if flow == Flow::Stop {
+                    return Ok(Flow::Stop);
+                }
+            }
+        })
+    }
+}
