@@ -1,16 +1,17 @@
 //! The service mesh of the design card: seven processes (plus the monitor) over iceoryx2 shared
 //! memory in data-driven lockstep, started by the real supervisor from `config/sim-mesh.toml`.
 
+use config::Eyes;
 use config::{Dof, Preset};
 use learning::Algorithm;
 use messages::{Endpoint, topics};
 use std::time::Duration;
 use system_tests::{MeshOptions, mean, run_mesh};
 use testkit::{Namespace, Process};
+use trainer::Setup;
 use trainer::world::World;
-use trainer::{EyesKind, Setup};
 
-fn setup(eyes: EyesKind) -> Setup {
+fn setup(eyes: Eyes) -> Setup {
     Setup::load(&testkit::config_dir(), Preset::Default)
         .unwrap()
         .with_eyes(eyes)
@@ -18,9 +19,15 @@ fn setup(eyes: EyesKind) -> Setup {
 }
 
 /// The in-process trainer's returns for the same seed.
-fn trainer_returns(eyes: EyesKind, seed: u64, episodes: usize) -> (Vec<f64>, Vec<f64>) {
+fn trainer_returns(eyes: Eyes, seed: u64, episodes: usize) -> (Vec<f64>, Vec<f64>) {
     let s = setup(eyes);
-    let mut world = World::new(&s.scenario, &s.learning, Algorithm::Nac, s.eyes(seed), seed);
+    let mut world = World::new(
+        &s.scenario,
+        &s.learning,
+        Algorithm::Nac,
+        s.perceiver(seed),
+        seed,
+    );
     let results: Vec<_> = (0..episodes).map(|_| world.run_episode()).collect();
     (
         results.iter().map(|r| *r.returns.get(Dof::Yaw)).collect(),
@@ -104,13 +111,13 @@ fn the_same_seed_gives_the_same_returns_twice() {
 }
 
 /// Runs the mesh and the in-process trainer on the same seed and asserts the same returns.
-fn assert_mesh_equals_trainer(label: &str, eyes: EyesKind, seed: u64, episodes: usize) {
+fn assert_mesh_equals_trainer(label: &str, eyes: Eyes, seed: u64, episodes: usize) {
     let run = run_mesh(
         &Namespace::new(label),
         &MeshOptions {
             episodes,
             seed,
-            eyes: if eyes == EyesKind::Ideal {
+            eyes: if eyes == Eyes::Ideal {
                 "ideal"
             } else {
                 "images"
@@ -137,7 +144,7 @@ fn assert_mesh_equals_trainer(label: &str, eyes: EyesKind, seed: u64, episodes: 
 /// streams in the same order: the returns are the same to the last bit.
 #[test]
 fn the_mesh_and_the_trainer_agree_with_ideal_perception() {
-    assert_mesh_equals_trainer("mti", EyesKind::Ideal, 7, 10);
+    assert_mesh_equals_trainer("mti", Eyes::Ideal, 7, 10);
 }
 
 /// With rendered images and perception in the loop, the mesh renders the trainer's frames (same
@@ -145,7 +152,7 @@ fn the_mesh_and_the_trainer_agree_with_ideal_perception() {
 /// stronger check than "statistically the same".
 #[test]
 fn the_mesh_and_the_trainer_agree_with_image_perception() {
-    assert_mesh_equals_trainer("mtm", EyesKind::Images, 3, 4);
+    assert_mesh_equals_trainer("mtm", Eyes::Images, 3, 4);
 }
 
 /// After every process of a mesh is killed with SIGKILL (no chance to clean up), the next run in the
@@ -153,7 +160,7 @@ fn the_mesh_and_the_trainer_agree_with_image_perception() {
 #[test]
 fn a_mesh_killed_with_sigkill_leaves_nothing_that_stops_the_next_run() {
     let ns = Namespace::new("mkl");
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(&ns, Endpoint::Sim);
     let observations = probe.inbox(&topics::CABLE_OBSERVATION);
     let mut processes: Vec<Process> = [
         ("simulator", vec![]),

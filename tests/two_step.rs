@@ -13,12 +13,13 @@
 //! the 12 of the calibration table in `services/lab/vehicle-twin/README.md` (learning improves yaw in 10
 //! of them, sway in 11).
 
+use config::Eyes;
 use config::{Dof, Scenario, TwinParams};
 use learning::Checkpoint;
 use monitor::RunRecord;
 use std::path::Path;
 use std::process::Command;
-use trainer::twin_world::{TwinEyes, TwinWorld};
+use trainer::twin_world::TwinWorld;
 
 const SEED: u64 = 10;
 const TRIALS: usize = 20;
@@ -152,7 +153,7 @@ fn two_step_learning_transfers_the_simulation_policy_and_improves_it_on_the_vehi
         Checkpoint::single(Checkpoint::load_dof(&step_one.join("sway.ckpt"), Dof::Sway).unwrap());
     checkpoint.insert(Checkpoint::load_dof(&step_one.join("yaw.ckpt"), Dof::Yaw).unwrap());
     let mut world =
-        TwinWorld::from_checkpoint(&scenario, &twin, &checkpoint, TwinEyes::Images, SEED).unwrap();
+        TwinWorld::from_checkpoint(&scenario, &twin, &checkpoint, Eyes::Images, SEED).unwrap();
     for (t, (yaw, sway)) in vehicle.yaw.iter().zip(&vehicle.sway).enumerate() {
         let r = world.run_trial();
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * (1.0 + b.abs());

@@ -9,7 +9,7 @@ use messages::{Endpoint, topics};
 use std::path::Path;
 use std::time::Duration;
 use testkit::Namespace;
-use trainer::Eyes;
+use trainer::Perceiver;
 use trainer::world::World;
 
 const T: Duration = Duration::from_secs(40);
@@ -20,7 +20,7 @@ fn step_one(dir: &Path) {
     let config = testkit::config_dir();
     let scenario: Scenario = config::load(&config.join("scenario.toml")).unwrap();
     let learning: LearningParams = config::load(&config.join("learning.toml")).unwrap();
-    let eyes = Eyes::Ideal(scenario.observation.clone());
+    let eyes = Perceiver::Ideal(scenario.observation.clone());
     let mut world = World::new(&scenario, &learning, Algorithm::Nac, eyes, 4);
     for _ in 0..STEP_ONE_EPISODES {
         world.run_episode();
@@ -73,7 +73,7 @@ fn a_behaviour_killed_mid_learning_on_the_vehicle_resumes_from_its_last_checkpoi
     let dir = tempfile::tempdir().unwrap();
     let (initial, state) = (dir.path().join("step-one"), dir.path().join("state"));
     step_one(&initial);
-    let probe = ns.probe(Endpoint::Vehicle);
+    let probe = testkit::probe(&ns, Endpoint::Vehicle);
     let reports = probe.inbox(&topics::learning(Dof::Sway));
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
     let path = |p: &Path| p.display().to_string();
@@ -99,23 +99,17 @@ fn a_behaviour_killed_mid_learning_on_the_vehicle_resumes_from_its_last_checkpoi
             s.stamp.episode >= 2 && s.stamp.step >= 200
         })
         .unwrap_or_else(|| panic!("the mesh does not run:\n{}", supervisor.log()));
-    let sway = testkit::children(supervisor.pid())
-        .into_iter()
-        .find(|(_, name)| name == "sway-behaviour")
+    let sway = supervisor
+        .signal_service("sway-behaviour", libc::SIGKILL)
         .expect("sway-behaviour is one of the supervisor's children");
-    // SAFETY: kill(2) on a process of this test's mesh.
-    unsafe {
-        libc::kill(sway.0, libc::SIGKILL);
-    }
     // The loop goes on: a newer trial is reported by the restarted behaviour.
     probe
         .wait_for(&reports, T, |s| s.stamp.episode >= before.stamp.episode + 2)
         .unwrap_or_else(|| panic!("the loop did not resume:\n{}", supervisor.log()));
-    let restarted = testkit::children(supervisor.pid())
-        .into_iter()
-        .find(|(_, name)| name == "sway-behaviour")
+    let restarted = supervisor
+        .service("sway-behaviour")
         .expect("sway-behaviour was restarted");
-    assert_ne!(restarted.0, sway.0);
+    assert_ne!(restarted, sway);
 
     drop(reports);
     drop(setpoints);

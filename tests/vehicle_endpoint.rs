@@ -20,7 +20,7 @@ fn scenario() -> Scenario {
 #[test]
 fn twin_frames_reach_perception_and_the_allocators_setpoints_reach_the_twin() {
     let ns = Namespace::new("vtep");
-    let probe = ns.probe(Endpoint::Vehicle);
+    let probe = testkit::probe(&ns, Endpoint::Vehicle);
     let observations = probe.inbox(&topics::CABLE_OBSERVATION);
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
     let commands = [

@@ -54,7 +54,7 @@ impl Default for MeshOptions {
 pub fn run_mesh(ns: &Namespace, opts: &MeshOptions) -> MeshRun {
     let dir = tempfile::tempdir().expect("a temporary directory");
     let json: PathBuf = dir.path().join("run.json");
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(ns, Endpoint::Sim);
     let observations = opts.watch.then(|| probe.inbox(&topics::CABLE_OBSERVATION));
     let mut supervisor = testkit::supervisor(
         ns,

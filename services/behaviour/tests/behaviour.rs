@@ -143,7 +143,7 @@ struct Rig {
 impl Rig {
     fn start(dof: Dof, label: &str, args: &[&str]) -> Rig {
         let ns = Namespace::new(label);
-        let probe = ns.probe(Endpoint::Sim);
+        let probe = testkit::probe(&ns, Endpoint::Sim);
         let commands = probe.inbox(&topics::command(dof));
         let stats = probe.inbox(&topics::learning(dof));
         let observations = probe.outbox(&topics::CABLE_OBSERVATION);

@@ -14,19 +14,10 @@
 //!
 //! On the vehicle endpoint the camera reads a frame source instead ([`vehicle`]).
 
-use config::{ObservationLimits, Scenario};
+use config::{Eyes, ObservationLimits, Scenario};
 use messages::{CableTruth, CameraFrameHeader, Stamp, VehicleStateMsg};
 use model::{Cable, Camera};
 use vision::{Renderer, VisionError};
-
-/// What the camera puts in its frames.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Eyes {
-    /// The geometric truth only, no image (ideal perception passes it on).
-    Ideal,
-    /// A rendered image, and the geometric truth beside it.
-    Images,
-}
 
 /// The renderer's frame index of a step: the run's steps counted from 0. `seq` counts from 1, and
 /// the trainer's `SimulatedVision` numbers the frames of a run from 0, so both render the same frame

@@ -6,9 +6,10 @@
 use adapters::replay::{Pacing, ReplaySource};
 use adapters::twin::TwinFrameSource;
 use adapters::{Frame, FrameSource, Wake};
+use camera::SimCamera;
 use camera::vehicle::{Publish, SeqMap, SourceSpec, VehicleCamera};
-use camera::{Eyes, SimCamera};
 use clap::Parser;
+use config::Eyes;
 use messages::{Endpoint, topics};
 use runtime::{CommonArgs, Flow, Runtime, Timer};
 use std::convert::Infallible;
@@ -24,7 +25,7 @@ struct Args {
     #[command(flatten)]
     common: CommonArgs,
     /// Sim endpoint: `ideal`: frames carry the geometric truth only; `images`: a rendered image too.
-    #[arg(long, value_enum, default_value = "ideal")]
+    #[arg(long, default_value = "ideal", value_name = "ideal|images")]
     eyes: Eyes,
     /// Vehicle endpoint: the frame source, `twin` (the vehicle twin's camera) or `replay:DIR` (a
     /// recorded dive) [default: twin].

@@ -76,7 +76,7 @@ struct Rig {
 }
 
 fn rig(ns: &Namespace, eyes: &str) -> Rig {
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(ns, Endpoint::Sim);
     let frames = probe.frame_inbox();
     let states = probe.outbox(&topics::VEHICLE_STATE);
     let seed = SEED.to_string();
@@ -170,7 +170,7 @@ fn on_the_vehicle_endpoint_a_recorded_dive_is_published_with_its_stamps() {
     }
     w.finish().unwrap();
 
-    let probe = ns.probe(Endpoint::Vehicle);
+    let probe = testkit::probe(&ns, Endpoint::Vehicle);
     let inbox = probe.frame_inbox();
     let source = format!("replay:{}", dive.display());
     let mut camera = Process::start(

@@ -12,18 +12,9 @@
 //! makes) gives a *not found* observation and the reason ([`Observed::bad_frame`]), never an error:
 //! a broken frame must not stop the vehicle's loop.
 
-use config::Scenario;
+use config::{Eyes, Scenario};
 use messages::{CableObservationMsg, CableTruth, CameraFrameHeader, Stamp};
 use vision::{ImageView, Perception, VisionError};
-
-/// How the cable is observed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Eyes {
-    /// Pass the frame's geometric truth on (the camera sends no image).
-    Ideal,
-    /// Find the cable in the frame's image.
-    Images,
-}
 
 /// One frame's result.
 #[derive(Clone, Debug, PartialEq)]

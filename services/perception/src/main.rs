@@ -2,8 +2,9 @@
 //! One observation per step: a re-sent frame gets the same observation again, an older one nothing.
 
 use clap::Parser;
+use config::Eyes;
 use messages::topics;
-use perception::{Eyes, Observed, Observer};
+use perception::{Observed, Observer};
 use runtime::{Answer, CommonArgs, Flow};
 use std::process::ExitCode;
 
@@ -16,7 +17,7 @@ struct Args {
     #[command(flatten)]
     common: CommonArgs,
     /// `ideal`: pass the frame's geometric truth on; `images`: find the cable in the image.
-    #[arg(long, value_enum, default_value = "ideal")]
+    #[arg(long, default_value = "ideal", value_name = "ideal|images")]
     eyes: Eyes,
 }
 

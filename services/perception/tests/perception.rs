@@ -39,7 +39,7 @@ struct Rig {
 }
 
 fn rig(ns: &Namespace, eyes: &str) -> Rig {
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(ns, Endpoint::Sim);
     let frames = probe.frame_outbox(W * H);
     let observations = probe.inbox(&topics::CABLE_OBSERVATION);
     let perception = Process::start(

@@ -3,9 +3,10 @@
 //! the same time steps, the same resets at each episode's start.
 
 use camera::SimCamera;
+use config::Eyes;
 use config::{Scenario, derive_seed};
 use messages::CableTruth;
-use perception::{Eyes, Observer};
+use perception::Observer;
 use simulator::Simulator;
 use simulator::lockstep::Published;
 use vision::SimulatedVision;
@@ -17,7 +18,7 @@ fn camera_and_perception_stages_match_the_trainers_eyes_bit_for_bit() {
     let seed = 21;
     let render_seed = derive_seed(seed, "render");
     let mut sim = Simulator::new(&scenario, derive_seed(seed, "simulator"));
-    let mut camera = SimCamera::new(&scenario, camera::Eyes::Images, render_seed).unwrap();
+    let mut camera = SimCamera::new(&scenario, Eyes::Images, render_seed).unwrap();
     let mut observer = Observer::new(&scenario, Eyes::Images).unwrap();
     let mut trainer_eyes = SimulatedVision::new(&scenario, render_seed).unwrap();
     let mut image = vec![0; camera.image_len()];

@@ -61,7 +61,7 @@ fn start(ns: &Namespace, args: &[&str]) -> Process {
 #[test]
 fn answers_setpoints_with_the_state_its_core_predicts() {
     let ns = Namespace::new("sima");
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(&ns, Endpoint::Sim);
     let states = probe.inbox(&topics::VEHICLE_STATE);
     let out = probe.outbox(&topics::THRUSTER_SETPOINTS);
     let _sim = start(&ns, &[]);
@@ -107,7 +107,7 @@ fn answers_setpoints_with_the_state_its_core_predicts() {
 #[test]
 fn re_sends_the_state_until_the_mesh_answers_and_never_times_out_before() {
     let ns = Namespace::new("simr");
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(&ns, Endpoint::Sim);
     let states = probe.inbox(&topics::VEHICLE_STATE);
     // A deadline far shorter than the wait below: before the mesh ever answered it does not apply.
     let _sim = start(&ns, &["--resend-ms", "30", "--deadline-ms", "50"]);
@@ -130,7 +130,7 @@ fn re_sends_the_state_until_the_mesh_answers_and_never_times_out_before() {
 #[test]
 fn a_step_without_setpoints_is_integrated_with_zero_thrust_after_the_deadline() {
     let ns = Namespace::new("simd");
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(&ns, Endpoint::Sim);
     let states = probe.inbox(&topics::VEHICLE_STATE);
     let out = probe.outbox(&topics::THRUSTER_SETPOINTS);
     let sim = start(&ns, &["--resend-ms", "50", "--deadline-ms", "300"]);
@@ -187,7 +187,7 @@ fn runs_the_requested_episodes_then_exits() {
     let ns = Namespace::new("sime");
     let dir = tempfile::tempdir().unwrap();
     short_episodes(dir.path(), 2);
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(&ns, Endpoint::Sim);
     let states = probe.inbox(&topics::VEHICLE_STATE);
     let out = probe.outbox(&topics::THRUSTER_SETPOINTS);
     let config_dir = dir.path().to_str().unwrap();
@@ -234,7 +234,7 @@ fn runs_the_requested_episodes_then_exits() {
 #[test]
 fn sigterm_stops_it_cleanly_and_leaves_nothing_behind() {
     let ns = Namespace::new("sims");
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(&ns, Endpoint::Sim);
     let states = probe.inbox(&topics::VEHICLE_STATE);
     let mut sim = start(&ns, &[]);
     probe

@@ -29,7 +29,7 @@ struct Rig {
 
 fn start(label: &str) -> Rig {
     let ns = Namespace::new(label);
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(&ns, Endpoint::Sim);
     let commands = probe.inbox(&topics::SURGE_COMMAND);
     let observations = probe.outbox(&topics::CABLE_OBSERVATION);
     let process = Process::start(&ns, &testkit::binary("surge-controller"), &[]);

@@ -18,7 +18,7 @@ fn command(seq: u64, value: f64) -> DofCommand {
 #[test]
 fn three_commands_give_setpoints_that_map_back_to_them() {
     let ns = Namespace::new("alc");
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(&ns, Endpoint::Sim);
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
     let (surge, sway, yaw) = (
         probe.outbox(&topics::SURGE_COMMAND),
@@ -74,7 +74,7 @@ fn three_commands_give_setpoints_that_map_back_to_them() {
 #[test]
 fn a_missing_command_counts_as_zero_after_the_deadline() {
     let ns = Namespace::new("ald");
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(&ns, Endpoint::Sim);
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
     let (surge, sway) = (
         probe.outbox(&topics::SURGE_COMMAND),
@@ -105,7 +105,7 @@ fn a_missing_command_counts_as_zero_after_the_deadline() {
 #[test]
 fn a_re_sent_step_gets_the_same_setpoints_and_a_stale_one_nothing() {
     let ns = Namespace::new("alr");
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(&ns, Endpoint::Sim);
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
     let outs = [
         probe.outbox(&topics::SURGE_COMMAND),
@@ -135,7 +135,7 @@ fn a_re_sent_step_gets_the_same_setpoints_and_a_stale_one_nothing() {
 #[test]
 fn sigterm_stops_it_cleanly() {
     let ns = Namespace::new("als");
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(&ns, Endpoint::Sim);
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
     let mut alloc = Process::start(&ns, &testkit::binary("thruster-allocator"), &[]);
     assert!(probe.wait_for_publisher(&setpoints, T));
@@ -151,7 +151,7 @@ fn on_the_vehicle_endpoint_setpoints_are_written_to_the_sink() {
     let ns = Namespace::new("alv");
     let tmp = tempfile::tempdir().unwrap();
     let file = tmp.path().join("setpoints.csv");
-    let probe = ns.probe(Endpoint::Vehicle);
+    let probe = testkit::probe(&ns, Endpoint::Vehicle);
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
     let outs = [
         probe.outbox(&topics::SURGE_COMMAND),

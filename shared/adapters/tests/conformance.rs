@@ -24,7 +24,7 @@ struct TwinSourceRig {
 impl TwinSourceRig {
     fn new() -> Self {
         let ns = Namespace::new("adts");
-        let probe = ns.probe(Endpoint::Vehicle);
+        let probe = testkit::probe(&ns, Endpoint::Vehicle);
         TwinSourceRig {
             _ns: ns,
             probe,
@@ -316,7 +316,7 @@ impl SinkRig for TwinSinkRig {
 #[test]
 fn the_twin_thruster_sink_conforms() {
     let ns = Namespace::new("adtk");
-    let probe = ns.probe(Endpoint::Vehicle);
+    let probe = testkit::probe(&ns, Endpoint::Vehicle);
     conformance::thruster_sink(&mut TwinSinkRig {
         _ns: ns,
         probe,

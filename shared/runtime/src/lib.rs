@@ -1,7 +1,8 @@
 //! What every cabletrack process shares, written once: the common command line, tracing, the
 //! configuration, the iceoryx2 node (isolated by a prefix and root, with dead nodes' leftovers
-//! removed at start), clean shutdown on SIGINT/SIGTERM, the blocking wait loop, and the lockstep
-//! helpers.
+//! removed at start), clean shutdown on SIGINT/SIGTERM, the blocking wait loop, the lockstep
+//! protocol ([`lockstep`], [`Runtime::serve_steps`]), and the processes a program starts
+//! ([`process`], [`Namespace`]).
 //!
 //! A service's `main` reads:
 //!
@@ -20,10 +21,13 @@
 //! ```
 
 pub mod lockstep;
+mod namespace;
 mod node;
+pub mod process;
 mod steps;
 mod wait;
 
+pub use namespace::Namespace;
 pub use node::{
     CommonArgs, IoxSettings, Runtime, RuntimeError, init_tracing, remove_dead_nodes, run,
     shm_files, shm_leftovers,

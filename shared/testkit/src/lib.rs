@@ -3,16 +3,18 @@
 //!
 //! - [`Namespace`]: an iceoryx2 prefix and root of the test's own, so tests run in parallel without
 //!   meeting; dropping it removes the root and the prefix's shared-memory files.
-//! - [`Process`]: a service binary started in a namespace, stopped with SIGTERM (then SIGKILL) when
-//!   dropped; its log is kept and shown when the test fails.
-//! - [`Probe`]: the test's own node, to publish to and receive from the processes, waiting in a
-//!   WaitSet with a deadline (never a sleep).
+//! - [`Process`]: a service binary started in a namespace (`runtime::process`), stopped with
+//!   SIGTERM (then SIGKILL) when dropped; its log is kept and shown when the test fails.
+//! - [`Probe`]: the test's own node, to publish to and receive from the processes. Receiving blocks
+//!   in iceoryx2 with a deadline; a publisher's or subscriber's arrival has no event in iceoryx2,
+//!   so those waits look again every 5 ms until their deadline.
 
 use iceoryx2::prelude::*;
 use messages::ports::Payload;
 use messages::{Endpoint, FrameInbox, FrameOutbox, Inbox, Outbox, Topic};
+use runtime::process::{Child, Spawn};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::ExitStatus;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
@@ -46,88 +48,21 @@ pub fn binary(name: &str) -> PathBuf {
     path
 }
 
-static NEXT: AtomicU32 = AtomicU32::new(0);
+/// An isolated iceoryx2 namespace for one test (the runtime's: removed with everything in it when
+/// dropped).
+pub use runtime::Namespace;
 
-/// An isolated iceoryx2 namespace for one test.
-pub struct Namespace {
-    pub prefix: String,
-    pub root: PathBuf,
-}
+/// The children of process `pid`: (pid, program name), e.g. a supervisor's services.
+pub use runtime::process::children;
 
-impl Namespace {
-    /// A fresh namespace; `label` (a few letters) helps find leftovers.
-    pub fn new(label: &str) -> Self {
-        let n = NEXT.fetch_add(1, Ordering::Relaxed);
-        // Short: root + prefix must fit a socket path (runtime checks 63 bytes).
-        let prefix = format!(
-            "t{}{}{}_",
-            label.chars().take(4).collect::<String>(),
-            std::process::id() % 100_000,
-            n
-        );
-        let root = PathBuf::from(format!("/tmp/ctt/{prefix}/"));
-        let _ = std::fs::remove_dir_all(&root);
-        Namespace { prefix, root }
-    }
-
-    /// The settings a process needs to join (as `runtime` reads them from the environment).
-    pub fn env(&self) -> [(&'static str, String); 2] {
-        [
-            ("CABLETRACK_IOX_PREFIX", self.prefix.clone()),
-            ("CABLETRACK_IOX_ROOT", self.root.display().to_string()),
-        ]
-    }
-
-    pub fn settings(&self) -> runtime::IoxSettings {
-        runtime::IoxSettings {
-            prefix: self.prefix.clone(),
-            root: self.root.display().to_string(),
-        }
-    }
-
-    /// The test's own node in this namespace.
-    pub fn probe(&self, endpoint: Endpoint) -> Probe {
-        let cfg = self.settings().config().expect("a valid namespace");
-        let node = NodeBuilder::new()
-            .name(&NodeName::new("test-probe").unwrap())
-            .config(&cfg)
-            .create::<ipc::Service>()
-            .expect("the probe's node");
-        // Install iceoryx2's signal handler now, like the services do.
-        let _ = node.wait(Duration::ZERO);
-        Probe { node, endpoint }
-    }
-
-    /// Shared-memory files of this namespace still in /dev/shm.
-    pub fn shm_files(&self) -> Vec<String> {
-        runtime::shm_files(&self.prefix)
-    }
-
-    /// Files of this namespace that outlive its processes (see [`runtime::shm_leftovers`]).
-    pub fn leftovers(&self) -> Vec<String> {
-        runtime::shm_leftovers(&self.prefix)
-    }
-}
-
-impl Drop for Namespace {
-    fn drop(&mut self) {
-        for f in self.shm_files() {
-            let _ = std::fs::remove_file(Path::new("/dev/shm").join(f));
-        }
-        let _ = std::fs::remove_dir_all(&self.root);
-    }
-}
-
-/// A service process started for a test.
+/// A service process started for a test: its output in a log file in the namespace's root, shown
+/// when the test fails; stopped (SIGTERM, then SIGKILL) when dropped.
 pub struct Process {
-    name: String,
-    child: Option<Child>,
-    log: PathBuf,
+    child: Child,
 }
 
 impl Process {
-    /// Starts `binary` in `ns` with the repository's config and `args`; its stdout and stderr go to
-    /// a log file in the namespace's root.
+    /// Starts `binary` in `ns` with the repository's config and `args`.
     pub fn start(ns: &Namespace, binary: &Path, args: &[&str]) -> Process {
         Self::start_with_env(ns, binary, args, &[])
     }
@@ -138,96 +73,98 @@ impl Process {
         args: &[&str],
         env: &[(&str, &str)],
     ) -> Process {
+        static NEXT: AtomicU32 = AtomicU32::new(0);
         let name = binary.file_name().unwrap().to_string_lossy().into_owned();
-        std::fs::create_dir_all(&ns.root).expect("the namespace root");
-        let log = ns.root.join(format!(
+        let log = ns.scratch().join(format!(
             "{name}-{}.log",
             NEXT.fetch_add(1, Ordering::Relaxed)
         ));
-        let file = std::fs::File::create(&log).expect("the log file");
-        let mut cmd = Command::new(binary);
-        cmd.args(args)
+        let child = Spawn::new(binary)
+            .args(args)
             .env("CABLETRACK_CONFIG", config_dir())
             .envs(ns.env())
             .envs(env.iter().copied())
-            .stdin(Stdio::null())
-            .stdout(file.try_clone().unwrap())
-            .stderr(file);
-        let child = cmd
-            .spawn()
+            .log(log)
+            .die_with_parent()
+            .start()
             .unwrap_or_else(|e| panic!("cannot start {}: {e}", binary.display()));
-        Process {
-            name,
-            child: Some(child),
-            log,
-        }
+        Process { child }
     }
 
-    pub fn pid(&self) -> i32 {
-        self.child.as_ref().map_or(0, |c| c.id() as i32)
+    /// The pid it was started with.
+    pub fn pid(&self) -> u32 {
+        self.child.started_pid()
     }
 
     /// What the process has logged so far.
     pub fn log(&self) -> String {
-        std::fs::read_to_string(&self.log).unwrap_or_default()
+        self.child.log()
     }
 
-    /// Sends `signal` (e.g. `libc::SIGTERM`).
-    pub fn signal(&self, signal: i32) {
-        // SAFETY: kill(2) with the pid of a child we own.
-        unsafe {
-            libc::kill(self.pid(), signal);
-        }
+    /// Sends `signal` (e.g. `libc::SIGTERM`) while it is running; `false` once it has exited.
+    pub fn signal(&self, signal: i32) -> bool {
+        self.child.signal(signal)
     }
 
-    /// SIGTERM, then waits up to `timeout` for the exit (SIGKILL after it).
+    /// SIGTERM, up to `timeout` to exit, then SIGKILL.
     pub fn terminate(&mut self, timeout: Duration) -> ExitStatus {
-        self.signal(libc::SIGTERM);
-        self.wait(timeout).unwrap_or_else(|| {
-            self.signal(libc::SIGKILL);
-            self.wait(Duration::from_secs(5))
-                .expect("a killed process exits")
-        })
+        self.child.stop(timeout)
     }
 
     /// SIGKILL: the process gets no chance to clean up.
     pub fn kill9(&mut self) -> ExitStatus {
-        self.signal(libc::SIGKILL);
-        self.wait(Duration::from_secs(5))
-            .expect("a killed process exits")
+        self.child.kill()
     }
 
-    /// Waits up to `timeout` for the process to exit on its own.
+    /// Blocks until the process exits on its own, or `timeout` passes.
     pub fn wait(&mut self, timeout: Duration) -> Option<ExitStatus> {
-        let child = self.child.as_mut()?;
-        let end = Instant::now() + timeout;
-        loop {
-            if let Ok(Some(status)) = child.try_wait() {
-                self.child = None;
-                return Some(status);
-            }
-            if Instant::now() >= end {
-                return None;
-            }
-            // Polling a child's exit status has no event to block on; 10 ms is far below any timeout.
-            std::thread::park_timeout(Duration::from_millis(10));
-        }
+        self.child.wait_timeout(timeout)
     }
 
     pub fn is_running(&mut self) -> bool {
-        matches!(self.child.as_mut().map(|c| c.try_wait()), Some(Ok(None)))
+        self.child.is_running()
+    }
+
+    /// The pid of this process's child named `name` (a supervisor's service), if it has one now.
+    pub fn service(&self, name: &str) -> Option<u32> {
+        self.child
+            .pid()
+            .into_iter()
+            .flat_map(children)
+            .find(|(_, n)| n == name)
+            .map(|(p, _)| p)
+    }
+
+    /// Sends `signal` to this process's child named `name` (a supervisor's service): only a live
+    /// child of this test's own process is ever signalled. Returns its pid.
+    pub fn signal_service(&self, name: &str, signal: i32) -> Option<u32> {
+        let pid = self.service(name)?;
+        let pid = libc::pid_t::try_from(pid).ok().filter(|&p| p > 0)?;
+        // SAFETY: kill(2) on a process that is, as just read from /proc, a child of this test's own
+        // running child; a pid of 0 or below (a process group) is never passed.
+        (unsafe { libc::kill(pid, signal) } == 0).then_some(pid as u32)
     }
 }
 
 impl Drop for Process {
     fn drop(&mut self) {
-        if self.child.is_some() {
-            self.terminate(Duration::from_secs(5));
-        }
         if std::thread::panicking() {
-            eprintln!("----- log of {} -----\n{}", self.name, self.log());
+            eprintln!("----- log of {} -----\n{}", self.child.name(), self.log());
         }
     }
+}
+
+/// The test's own node in namespace `ns`, on `endpoint`.
+pub fn probe(ns: &Namespace, endpoint: Endpoint) -> Probe {
+    let cfg = ns.iox.config().expect("a valid namespace");
+    let node = NodeBuilder::new()
+        .name(&NodeName::new("test-probe").unwrap())
+        .config(&cfg)
+        .create::<ipc::Service>()
+        .expect("the probe's node");
+    // Install iceoryx2's signal handler now, like the services do.
+    let _ = node.wait(Duration::ZERO);
+    Probe { node, endpoint }
 }
 
 /// The test's side of the IPC.
@@ -317,37 +254,10 @@ impl Probe {
     }
 }
 
-/// The children of process `pid`: (pid, program name), e.g. a supervisor's services.
-pub fn children(pid: i32) -> Vec<(i32, String)> {
-    std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children"))
-        .unwrap_or_default()
-        .split_whitespace()
-        .filter_map(|p| p.parse().ok())
-        .map(|p: i32| {
-            let comm = std::fs::read_to_string(format!("/proc/{p}/comm")).unwrap_or_default();
-            (p, comm.trim().to_owned())
-        })
-        .collect()
-}
-
 /// The `supervisor` running `mesh` (a file of `config/`, or any path) in namespace `ns` with the
 /// experiment's `seed` and `--set KEY=VALUE` for each of `sets`.
 pub fn supervisor(ns: &Namespace, mesh: &Path, seed: u64, sets: &[(&str, String)]) -> Process {
-    let settings = ns.settings();
-    let mut args = vec![
-        "--mesh".to_owned(),
-        mesh.display().to_string(),
-        "--seed".into(),
-        seed.to_string(),
-        "--iox-prefix".into(),
-        settings.prefix,
-        "--iox-root".into(),
-        settings.root,
-    ];
-    for (k, v) in sets {
-        args.push("--set".into());
-        args.push(format!("{k}={v}"));
-    }
+    let args = supervisor::command_line(mesh, None, seed, &ns.iox, sets);
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     Process::start(ns, &binary("supervisor"), &args)
 }

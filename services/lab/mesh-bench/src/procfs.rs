@@ -93,20 +93,12 @@ fn parse_cpu_busy(line: &str) -> u64 {
     [0, 1, 2, 5, 6, 7].iter().filter_map(|&i| f.get(i)).sum()
 }
 
-/// The children of `pid` (of any of its threads).
+/// The children of `pid` (see `runtime::process::children`).
 pub fn children(pid: i32) -> Vec<i32> {
-    let mut out = Vec::new();
-    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
-        return out;
-    };
-    for task in tasks.flatten() {
-        if let Ok(s) = std::fs::read_to_string(task.path().join("children")) {
-            out.extend(s.split_whitespace().filter_map(|p| p.parse::<i32>().ok()));
-        }
-    }
-    out.sort_unstable();
-    out.dedup();
-    out
+    runtime::process::children(pid as u32)
+        .into_iter()
+        .map(|(p, _)| p as i32)
+        .collect()
 }
 
 /// `utime` and `stime` from `/proc/<pid>/stat` (the command name in parentheses may hold spaces).

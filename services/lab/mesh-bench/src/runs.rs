@@ -9,10 +9,10 @@ use crate::stats::{Summary, now_ns};
 use crate::timeline::HopLatencies;
 use anyhow::{Context, Result, bail};
 use messages::Endpoint;
+use runtime::Namespace;
+use runtime::process::{Child, Spawn};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
 /// How often the processes are read and the mesh's step is asked while it runs without the probe.
@@ -22,171 +22,22 @@ const PROBE_POLL: Duration = Duration::from_millis(50);
 /// The longest any one run may take.
 const RUN_LIMIT: Duration = Duration::from_secs(600);
 
-static NEXT: AtomicU32 = AtomicU32::new(0);
-
-/// An iceoryx2 prefix and root of one run's own, and a scratch directory inside the root (logs,
-/// checkpoints); all of it is removed when dropped.
-pub struct Namespace {
-    pub iox: runtime::IoxSettings,
-    pub root: PathBuf,
-}
-
-impl Namespace {
-    /// A fresh namespace; `tag` (one letter) tells the runs apart in `/dev/shm`.
-    pub fn new(tag: char) -> Result<Namespace> {
-        let n = NEXT.fetch_add(1, Ordering::Relaxed);
-        // Short: root + prefix must fit a socket path.
-        let prefix = format!("cb{tag}{}{n}_", std::process::id() % 100_000);
-        let root = PathBuf::from(format!("/tmp/ctb/{prefix}/"));
-        let _ = std::fs::remove_dir_all(&root);
-        std::fs::create_dir_all(root.join("bench"))
-            .with_context(|| format!("creating {}", root.display()))?;
-        Ok(Namespace {
-            iox: runtime::IoxSettings {
-                prefix,
-                root: root.display().to_string(),
-            },
-            root,
-        })
-    }
-
-    /// Where the run's logs and files go.
-    pub fn scratch(&self) -> PathBuf {
-        self.root.join("bench")
-    }
-
-    /// Shared-memory files still there once the run's processes are gone (see
-    /// [`runtime::shm_leftovers`]).
-    pub fn leftovers(&self) -> Vec<String> {
-        runtime::shm_leftovers(&self.iox.prefix)
-    }
-}
-
-impl Drop for Namespace {
-    fn drop(&mut self) {
-        for f in runtime::shm_files(&self.iox.prefix) {
-            let _ = std::fs::remove_file(Path::new("/dev/shm").join(f));
-        }
-        let _ = std::fs::remove_dir_all(&self.root);
-        // The common parent too, once no other run uses it.
-        if let Some(parent) = self.root.parent() {
-            let _ = std::fs::remove_dir(parent);
-        }
-    }
-}
-
-/// A process the bench started: it gets SIGTERM if the bench dies, and is stopped when dropped.
-pub struct Spawned {
-    name: String,
-    child: Option<Child>,
-    status: Option<ExitStatus>,
+/// Starts a process of a run: its output in `log`, stopped if the bench dies.
+pub fn spawn(
+    name: &str,
+    program: &Path,
+    args: &[String],
+    env: &[(&str, String)],
     log: PathBuf,
-}
-
-impl Spawned {
-    /// Starts `program` with `args` and `env`; its stdout and stderr go to `log`.
-    pub fn start(
-        name: &str,
-        program: &Path,
-        args: &[String],
-        env: &[(&str, String)],
-        log: PathBuf,
-    ) -> Result<Spawned> {
-        use std::os::unix::process::CommandExt;
-        let file =
-            std::fs::File::create(&log).with_context(|| format!("creating {}", log.display()))?;
-        let mut cmd = Command::new(program);
-        cmd.args(args)
-            .envs(env.iter().map(|(k, v)| (k, v)))
-            .stdin(Stdio::null())
-            .stdout(file.try_clone()?)
-            .stderr(file);
-        // SAFETY: prctl in the child before exec is async-signal-safe.
-        unsafe {
-            cmd.pre_exec(|| {
-                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
-                Ok(())
-            });
-        }
-        let child = cmd
-            .spawn()
-            .with_context(|| format!("starting {}", program.display()))?;
-        Ok(Spawned {
-            name: name.to_owned(),
-            child: Some(child),
-            status: None,
-            log,
-        })
-    }
-
-    pub fn pid(&self) -> i32 {
-        self.child.as_ref().map_or(0, |c| c.id() as i32)
-    }
-
-    /// Its exit status, once it has exited.
-    pub fn exited(&mut self) -> Option<ExitStatus> {
-        if let Some(child) = &mut self.child
-            && let Ok(Some(status)) = child.try_wait()
-        {
-            self.status = Some(status);
-            self.child = None;
-        }
-        self.status
-    }
-
-    /// Waits up to `timeout` for it to exit on its own.
-    pub fn wait(&mut self, timeout: Duration) -> Option<ExitStatus> {
-        let end = Instant::now() + timeout;
-        loop {
-            if let Some(s) = self.exited() {
-                return Some(s);
-            }
-            if Instant::now() >= end {
-                return None;
-            }
-            // A child's exit has nothing to block on here; 5 ms is far below any timeout.
-            std::thread::sleep(Duration::from_millis(5));
-        }
-    }
-
-    /// SIGTERM, up to `grace` to exit, then SIGKILL.
-    pub fn stop(&mut self, grace: Duration) -> Option<ExitStatus> {
-        if self.exited().is_none() {
-            // SAFETY: kill(2) on our own child, which has not been reaped.
-            unsafe {
-                libc::kill(self.pid(), libc::SIGTERM);
-            }
-            if self.wait(grace).is_none()
-                && let Some(child) = &mut self.child
-            {
-                let _ = child.kill();
-                self.status = child.wait().ok();
-                self.child = None;
-            }
-        }
-        self.status
-    }
-
-    pub fn log(&self) -> String {
-        std::fs::read_to_string(&self.log).unwrap_or_default()
-    }
-
-    /// The last `n` lines of its log, for an error message.
-    pub fn tail(&self, n: usize) -> String {
-        let log = self.log();
-        let lines: Vec<&str> = log.lines().collect();
-        format!(
-            "----- last lines of {}'s log -----\n{}",
-            self.name,
-            lines[lines.len().saturating_sub(n)..].join("\n")
-        )
-    }
-}
-
-impl Drop for Spawned {
-    fn drop(&mut self) {
-        self.stop(Duration::from_secs(5));
-    }
+) -> Result<Child> {
+    Spawn::new(program)
+        .name(name)
+        .args(args)
+        .envs(env.iter().map(|(k, v)| (k, v)))
+        .log(log)
+        .die_with_parent()
+        .start()
+        .with_context(|| format!("starting {}", program.display()))
 }
 
 /// One reading while a run goes on: the step the loop is at and its processes.
@@ -398,44 +249,17 @@ pub struct MeshRun {
     pub leftovers: usize,
 }
 
-/// The supervisor's command line for `mesh` in namespace `ns`, with `--set KEY=VALUE` for each of `sets`.
-pub fn supervisor_args(
-    mesh: &Path,
-    config_dir: &Path,
-    seed: u64,
-    ns: &Namespace,
-    sets: &[(&str, String)],
-) -> Vec<String> {
-    let mut args: Vec<String> = vec![
-        "--mesh".into(),
-        mesh.display().to_string(),
-        "--config".into(),
-        config_dir.display().to_string(),
-        "--seed".into(),
-        seed.to_string(),
-        "--iox-prefix".into(),
-        ns.iox.prefix.clone(),
-        "--iox-root".into(),
-        ns.iox.root.clone(),
-    ];
-    for (k, v) in sets {
-        args.push("--set".into());
-        args.push(format!("{k}={v}"));
-    }
-    args
-}
-
 /// Runs the mesh once through the supervisor, with images.
 pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
-    let ns = Namespace::new(if with_probe { 'p' } else { 'm' })?;
+    let ns = Namespace::new(if with_probe { "p" } else { "m" });
     let scratch = ns.scratch();
     let node = probe::node(&ns.iox, "mesh-bench")?;
     let watcher = Watcher::open(&node, with_probe)?;
-    let args = supervisor_args(
+    let args = supervisor::command_line(
         &setup.mesh_file,
-        &setup.config_dir,
+        Some(&setup.config_dir),
         setup.seed,
-        &ns,
+        &ns.iox,
         &[
             ("episodes", setup.episodes.to_string()),
             ("eyes", "images".to_owned()),
@@ -445,14 +269,14 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
         ],
     );
     let started = Instant::now();
-    let mut sup = Spawned::start(
+    let mut sup = spawn(
         "supervisor",
         &setup.bin_dir.join("supervisor"),
         &args,
         &[],
         scratch.join("supervisor.log"),
     )?;
-    let sup_pid = sup.pid();
+    let sup_pid = sup.started_pid() as i32;
     let mut run = MeshRun {
         probe_attached: with_probe,
         ..Default::default()
@@ -464,7 +288,7 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
                 p.push(sup_pid);
                 p
             };
-            let ticks = watch(&node, &mut progress, pids, || sup.exited().is_some())?;
+            let ticks = watch(&node, &mut progress, pids, || sup.try_status().is_some())?;
             let w = window(&ticks, setup.warmup).with_context(|| {
                 format!("the mesh never ran past its warm-up\n{}", sup.tail(30))
             })?;
@@ -476,7 +300,7 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
         }
         Watcher::Probe(probe) => {
             probe::set_realtime(setup.probe_fifo)?;
-            let seen = probe.run(PROBE_POLL, || sup.exited().is_some());
+            let seen = probe.run(PROBE_POLL, || sup.try_status().is_some());
             probe::set_realtime(None)?;
             let seen = seen?;
             let first = setup.warmup + 1;
@@ -492,7 +316,7 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
             run.hops = Some(hops);
         }
     }
-    let status = sup.wait(RUN_LIMIT);
+    let status = sup.wait_timeout(RUN_LIMIT);
     run.wall_s = started.elapsed().as_secs_f64();
     if !status.is_some_and(|s| s.success()) {
         bail!("the mesh failed ({status:?})\n{}", sup.tail(40));
@@ -531,7 +355,7 @@ pub fn ring(
     with_probe: bool,
     probe_fifo: Option<i32>,
 ) -> Result<RingRun> {
-    let ns = Namespace::new(if with_probe { 'q' } else { 'r' })?;
+    let ns = Namespace::new(if with_probe { "q" } else { "r" });
     let node = probe::node(&ns.iox, "mesh-bench")?;
     let watcher = Watcher::open(&node, with_probe)?;
     let env = [
@@ -555,7 +379,7 @@ pub fn ring(
         .map(String::from)
         .into();
         let log = ns.scratch().join(format!("{}.log", role.name()));
-        nodes.push((*role, Spawned::start(role.name(), exe, &args, &env, log)?));
+        nodes.push((*role, spawn(role.name(), exe, &args, &env, log)?));
     }
     let driver = nodes.len() - 1;
     let mut run = RingRun {
@@ -569,14 +393,14 @@ pub fn ring(
             Watcher::Progress(mut progress) => {
                 let pids: Vec<i32> = others
                     .iter()
-                    .map(|(_, s)| s.pid())
-                    .chain([sim.pid()])
+                    .map(|(_, s)| s.started_pid() as i32)
+                    .chain([sim.started_pid() as i32])
                     .collect();
                 let ticks = watch(
                     &node,
                     &mut progress,
                     || pids.clone(),
-                    || sim.exited().is_some(),
+                    || sim.try_status().is_some(),
                 )?;
                 if let Some(w) = window(&ticks, warmup) {
                     run.cpu_us_per_step = usage(&ticks, w)
@@ -589,14 +413,14 @@ pub fn ring(
             }
             Watcher::Probe(probe) => {
                 probe::set_realtime(probe_fifo)?;
-                let seen = probe.run(PROBE_POLL, || sim.exited().is_some());
+                let seen = probe.run(PROBE_POLL, || sim.try_status().is_some());
                 probe::set_realtime(None)?;
                 let seen = seen?;
                 run.probe = Some(probe_use(&seen, warmup + steps, Some(warmup + 1)));
                 run.probe_hops = Some(seen.timeline.hops(warmup + 1));
             }
         }
-        let status = sim.wait(RUN_LIMIT);
+        let status = sim.wait_timeout(RUN_LIMIT);
         if !status.is_some_and(|s| s.success()) {
             bail!("the ring failed ({status:?})\n{}", sim.tail(20));
         }
@@ -604,7 +428,7 @@ pub fn ring(
     let mut reports: Vec<NodeReport> = Vec::new();
     for (role, node) in &mut nodes {
         let status = node.stop(Duration::from_secs(5));
-        if !status.is_some_and(|s| s.success()) {
+        if !status.success() {
             bail!("ring node {role:?} failed ({status:?})\n{}", node.tail(20));
         }
         reports.push(
@@ -648,12 +472,12 @@ pub struct InProcessRun {
 /// `n` transitions has `n + 1`: its terminal step is observed too).
 pub fn in_process(config_dir: &Path, episodes: u32, seed: u64) -> Result<InProcessRun> {
     let setup = trainer::Setup::load(config_dir, config::Preset::Default)?
-        .with_eyes(trainer::EyesKind::Images)?;
+        .with_eyes(config::Eyes::Images)?;
     let mut world = trainer::world::World::new(
         &setup.scenario,
         &setup.learning,
         learning::Algorithm::Nac,
-        setup.eyes(seed),
+        setup.perceiver(seed),
         seed,
     );
     world.run_episode();
@@ -724,16 +548,5 @@ mod tests {
         assert!(window(&ticks[..3], 201).is_none());
         // 12 ms of other work over 40 ms.
         assert!((other_cores(&ticks, w) - 0.3).abs() < 1e-9);
-    }
-
-    #[test]
-    fn namespaces_are_short_and_leave_nothing() {
-        let ns = Namespace::new('t').unwrap();
-        assert!(ns.iox.root.len() + ns.iox.prefix.len() <= 63);
-        assert!(ns.iox.config().is_ok());
-        let root = ns.root.clone();
-        assert!(ns.scratch().is_dir());
-        drop(ns);
-        assert!(!root.exists());
     }
 }

@@ -9,9 +9,10 @@
 //! included. Meanwhile the bench reads each process in `/proc` every [`TICK`].
 
 use crate::procfs;
-use crate::runs::{Namespace, ProcessUse, Spawned, Tick, supervisor_args, usage};
+use crate::runs::{ProcessUse, Tick, spawn, usage};
 use crate::stats::{Summary, now_ns};
 use anyhow::{Context, Result, bail};
+use runtime::Namespace;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -70,15 +71,15 @@ pub struct VehicleRun {
 
 /// Runs step one in simulation, then the vehicle mesh at `speed`, and measures it.
 pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
-    let ns = Namespace::new('v')?;
+    let ns = Namespace::new("v");
     let scratch = ns.scratch();
     // Step one: the policy the vehicle starts from.
     let step_one = scratch.join("step-one");
-    let args = supervisor_args(
+    let args = supervisor::command_line(
         &setup.sim_mesh,
-        &setup.config_dir,
+        Some(&setup.config_dir),
         setup.seed,
-        &ns,
+        &ns.iox,
         &[
             ("episodes", setup.sim_episodes.to_string()),
             ("eyes", "ideal".into()),
@@ -90,7 +91,7 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
         "mesh-bench: vehicle: step one, {} episodes in simulation",
         setup.sim_episodes
     );
-    let mut sup = Spawned::start(
+    let mut sup = spawn(
         "supervisor (step one)",
         &setup.bin_dir.join("supervisor"),
         &args,
@@ -98,7 +99,7 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
         scratch.join("step-one.log"),
     )?;
     if !sup
-        .wait(Duration::from_secs(600))
+        .wait_timeout(Duration::from_secs(600))
         .is_some_and(|s| s.success())
     {
         bail!("step one failed\n{}", sup.tail(30));
@@ -107,11 +108,11 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     // Step two on the twin, at the vehicle's pace.
     let trials = setup.trials();
     let latency_file = scratch.join("latency.csv");
-    let args = supervisor_args(
+    let args = supervisor::command_line(
         &setup.vehicle_mesh,
-        &setup.config_dir,
+        Some(&setup.config_dir),
         setup.seed,
-        &ns,
+        &ns.iox,
         &[
             ("trials", trials.to_string()),
             ("pacing", format!("--speed={}", setup.speed)),
@@ -135,20 +136,20 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
         setup.speed, expected_s
     );
     let started = Instant::now();
-    let mut sup = Spawned::start(
+    let mut sup = spawn(
         "supervisor (vehicle)",
         &setup.bin_dir.join("supervisor"),
         &args,
         &[],
         scratch.join("vehicle.log"),
     )?;
-    let sup_pid = sup.pid();
+    let sup_pid = sup.started_pid() as i32;
     let limit = Duration::from_secs_f64(expected_s * 1.5 + 120.0);
     let period_ns = setup.period_s / setup.speed * 1e9;
     let t0 = now_ns();
     let mut ticks = Vec::new();
     let mut last_progress = Instant::now();
-    while sup.exited().is_none() {
+    while sup.try_status().is_none() {
         let mut pids = procfs::children(sup_pid);
         pids.push(sup_pid);
         let t_ns = now_ns();
@@ -175,11 +176,11 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
             );
         }
         // The supervisor's exit has nothing to block on here; readings are due every TICK anyway.
-        if sup.wait(TICK).is_some() {
+        if sup.wait_timeout(TICK).is_some() {
             break;
         }
     }
-    let status = sup.exited();
+    let status = sup.try_status();
     let wall_s = started.elapsed().as_secs_f64();
     if !status.is_some_and(|s| s.success()) {
         bail!("the vehicle mesh failed ({status:?})\n{}", sup.tail(40));

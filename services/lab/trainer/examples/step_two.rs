@@ -10,11 +10,12 @@
 //! images): the identified model and the centred camera, in trials of the same length from the same
 //! starts.
 
+use config::Eyes;
 use config::{Dof, LearningParams, Scenario, TwinParams};
 use learning::{Algorithm, Checkpoint};
 use std::path::PathBuf;
-use trainer::Eyes;
-use trainer::twin_world::{TrialResult, TwinEyes, TwinWorld};
+use trainer::Perceiver;
+use trainer::twin_world::{TrialResult, TwinWorld};
 use trainer::world::World;
 
 fn arg<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> T {
@@ -44,8 +45,8 @@ fn main() {
     let trials: usize = arg(&args, "--trials", 20);
     let sim_episodes: usize = arg(&args, "--sim-episodes", 100);
     let eyes = match arg(&args, "--eyes", "images".to_string()).as_str() {
-        "ideal" => TwinEyes::Ideal,
-        _ => TwinEyes::Images,
+        "ideal" => Eyes::Ideal,
+        _ => Eyes::Images,
     };
     let twin_path: PathBuf = arg(&args, "--twin", PathBuf::from("config/twin.toml"));
     let alpha: Option<f64> = args
@@ -68,7 +69,7 @@ fn main() {
             &scenario,
             &learning,
             Algorithm::Nac,
-            Eyes::Ideal(scenario.observation.clone()),
+            Perceiver::Ideal(scenario.observation.clone()),
             seed,
         );
         for _ in 0..sim_episodes {

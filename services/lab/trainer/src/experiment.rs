@@ -64,7 +64,7 @@ pub fn learning_run(
         &setup.scenario,
         &setup.learning,
         algorithm,
-        setup.eyes(seed),
+        setup.perceiver(seed),
         seed,
     );
     (0..episodes).map(|_| world.run_episode()).collect()
@@ -207,7 +207,7 @@ pub fn evaluate(
     let results: Vec<Vec<EpisodeResult>> = parallel_map(chunks, progress, |c| {
         let seed = run_seed(seed, c);
         let agents = fixed_agents(setup, gains, seed);
-        let mut world = World::with_agents(&setup.scenario, agents, setup.eyes(seed), seed);
+        let mut world = World::with_agents(&setup.scenario, agents, setup.perceiver(seed), seed);
         let n = CHUNK.min(episodes - c * CHUNK);
         (0..n).map(|_| world.run_episode()).collect()
     });

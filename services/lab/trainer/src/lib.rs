@@ -9,32 +9,23 @@ pub mod report;
 pub mod twin_world;
 pub mod world;
 
-use config::{ConfigError, LearningParams, ObservationLimits, PerDof, Preset, Scenario};
+use config::{ConfigError, Eyes, LearningParams, ObservationLimits, PerDof, Preset, Scenario};
 use learning::Algorithm;
 use model::CableObservation;
 use simulator::{SimStep, Simulator};
 use std::path::Path;
 use vision::{SimulatedVision, VisionError};
 
-/// How the behaviours see the cable.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum EyesKind {
-    /// The geometric camera: the exact line and rates (ideal perception).
-    Ideal,
-    /// Rendered camera images and the vision system's perception, as on the vehicle.
-    Images,
-}
-
-/// The camera and perception stage of the loop.
-pub enum Eyes {
+/// The camera and perception stage of the loop: what the behaviours observe of a simulator step.
+pub enum Perceiver {
     Ideal(ObservationLimits),
     Images(Box<SimulatedVision>),
 }
 
-impl Eyes {
+impl Perceiver {
     /// Forgets what was tracked (a new episode starts elsewhere).
     pub fn reset(&mut self) {
-        if let Eyes::Images(vision) = self {
+        if let Perceiver::Images(vision) = self {
             vision.reset();
         }
     }
@@ -42,8 +33,10 @@ impl Eyes {
     /// What the behaviours observe at this step.
     pub fn observe(&mut self, sim: &Simulator, step: &SimStep) -> CableObservation {
         match self {
-            Eyes::Ideal(limits) => sim.camera().observe_state(&step.state, sim.cable(), limits),
-            Eyes::Images(vision) => vision.observe(&step.state),
+            Perceiver::Ideal(limits) => {
+                sim.camera().observe_state(&step.state, sim.cable(), limits)
+            }
+            Perceiver::Images(vision) => vision.observe(&step.state),
         }
     }
 }
@@ -53,7 +46,7 @@ impl Eyes {
 pub struct Setup {
     pub scenario: Scenario,
     pub learning: LearningParams,
-    pub eyes: EyesKind,
+    pub eyes: Eyes,
 }
 
 impl Setup {
@@ -63,13 +56,13 @@ impl Setup {
             scenario: config::load(&config_dir.join("scenario.toml"))?,
             learning: config::load::<LearningParams>(&config_dir.join("learning.toml"))?
                 .with_preset(preset),
-            eyes: EyesKind::Ideal,
+            eyes: Eyes::Ideal,
         })
     }
 
     /// This setup seeing through `kind`; checks that the renderer and perception can be built.
-    pub fn with_eyes(mut self, kind: EyesKind) -> Result<Setup, VisionError> {
-        if kind == EyesKind::Images {
+    pub fn with_eyes(mut self, kind: Eyes) -> Result<Setup, VisionError> {
+        if kind == Eyes::Images {
             SimulatedVision::new(&self.scenario, 0)?;
         }
         self.eyes = kind;
@@ -77,10 +70,10 @@ impl Setup {
     }
 
     /// The perception stage for a run with this seed (the renderer's noise is its own stream).
-    pub fn eyes(&self, seed: u64) -> Eyes {
+    pub fn perceiver(&self, seed: u64) -> Perceiver {
         match self.eyes {
-            EyesKind::Ideal => Eyes::Ideal(self.scenario.observation.clone()),
-            EyesKind::Images => Eyes::Images(Box::new(
+            Eyes::Ideal => Perceiver::Ideal(self.scenario.observation.clone()),
+            Eyes::Images => Perceiver::Images(Box::new(
                 SimulatedVision::new(&self.scenario, config::derive_seed(seed, "render"))
                     .expect("the vision configuration was checked by Setup::with_eyes"),
             )),

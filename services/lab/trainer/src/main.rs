@@ -2,16 +2,17 @@
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
+use config::Eyes;
 use config::{Dof, PerDof, Preset};
 use learning::Algorithm;
 use learning::checkpoint::Checkpoint;
 use std::path::PathBuf;
 use std::time::Instant;
+use trainer::Setup;
 use trainer::experiment::{self, Curve};
 use trainer::figures::{Alphas, Fig5, PolicyMap, write_json};
 use trainer::progress::Progress;
 use trainer::world::{EpisodeResult, World};
-use trainer::{EyesKind, Setup};
 
 #[derive(Parser)]
 #[command(
@@ -26,8 +27,13 @@ struct Cli {
     #[arg(long, global = true, default_value = "default")]
     preset: Preset,
     /// How the behaviours see the cable: the exact geometry, or rendered images and perception.
-    #[arg(long, global = true, value_enum, default_value = "ideal")]
-    eyes: EyesKind,
+    #[arg(
+        long,
+        global = true,
+        default_value = "ideal",
+        value_name = "ideal|images"
+    )]
+    eyes: Eyes,
     #[command(subcommand)]
     command: Command,
 }
@@ -363,7 +369,7 @@ fn train(
         &setup.scenario,
         &setup.learning,
         algorithm,
-        setup.eyes(seed),
+        setup.perceiver(seed),
         seed,
     );
     let save = |world: &World| -> Result<()> {
@@ -456,7 +462,7 @@ fn bench(setup: &Setup, repeats: usize, episodes: usize) -> Result<()> {
                     &setup.scenario,
                     &setup.learning,
                     Algorithm::Nac,
-                    setup.eyes(seed),
+                    setup.perceiver(seed),
                     seed,
                 )
             } else {
@@ -465,7 +471,7 @@ fn bench(setup: &Setup, repeats: usize, episodes: usize) -> Result<()> {
                     yaw: [10.8, 3.3],
                 };
                 let agents = experiment::fixed_agents(setup, gains, seed);
-                World::with_agents(&setup.scenario, agents, setup.eyes(seed), seed)
+                World::with_agents(&setup.scenario, agents, setup.perceiver(seed), seed)
             };
             let start = Instant::now();
             let steps: u64 = (0..episodes)

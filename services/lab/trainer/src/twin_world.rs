@@ -4,10 +4,10 @@
 //! the twin drops never reaches perception: that step gets no command, and the thrusters hold.
 
 use behaviour::{Behaviour, resume_seed};
-use config::{Dof, PerDof, Scenario, TwinParams, derive_seed};
+use config::{Dof, Eyes, PerDof, Scenario, TwinParams, derive_seed};
 use learning::{Agent, Checkpoint, CheckpointError};
 use messages::{CableObservationMsg, CameraFrameHeader, LearningStats, Stamp, StepStatus};
-use perception::{Eyes, Observer};
+use perception::Observer;
 use surge_controller::SurgeController;
 use thruster_allocator::Allocator;
 use vehicle_twin::{Shot, Twin};
@@ -58,15 +58,6 @@ pub struct TracePoint {
     pub surge: f64,
 }
 
-/// How the vehicle side sees the cable in the in-process world.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum TwinEyes {
-    /// The twin's camera's true line (its mounting, its drops; no image effects).
-    Ideal,
-    /// Rendered images (the twin's harsher effects) and the vision system's perception.
-    Images,
-}
-
 /// The twin and the vehicle's cores in one loop.
 pub struct TwinWorld {
     twin: Twin,
@@ -84,12 +75,12 @@ impl TwinWorld {
         scenario: &Scenario,
         twin: &TwinParams,
         agents: PerDof<Agent>,
-        eyes: TwinEyes,
+        eyes: Eyes,
         seed: u64,
     ) -> Result<Self, VisionError> {
-        let images = eyes == TwinEyes::Images;
+        let images = eyes == Eyes::Images;
         let twin = Twin::new(scenario, twin, seed, images)?;
-        let observer = Observer::new(scenario, if images { Eyes::Images } else { Eyes::Ideal })?;
+        let observer = Observer::new(scenario, eyes)?;
         let (w, h) = twin.eye().size();
         Ok(TwinWorld {
             twin,
@@ -115,7 +106,7 @@ impl TwinWorld {
         scenario: &Scenario,
         twin: &TwinParams,
         checkpoint: &Checkpoint,
-        eyes: TwinEyes,
+        eyes: Eyes,
         seed: u64,
     ) -> Result<Self, FromCheckpointError> {
         let agent = |dof: Dof| -> Result<Agent, FromCheckpointError> {

@@ -2,7 +2,7 @@
 //! (simulator, camera, perception, sway and yaw behaviours, surge controller, thruster allocator),
 //! called in the mesh's order with no IPC. Step one runs here thousands of episodes per second.
 
-use crate::Eyes;
+use crate::Perceiver;
 use behaviour::{behave, new_agent};
 use config::StepStatus;
 use config::{Dof, LearningParams, PerDof, Scenario, derive_seed};
@@ -43,7 +43,7 @@ pub struct TracePoint {
 /// The in-process loop.
 pub struct World {
     sim: Simulator,
-    eyes: Eyes,
+    perceiver: Perceiver,
     agents: PerDof<Agent>,
     surge: SurgeController,
     allocator: Allocator,
@@ -68,7 +68,7 @@ impl World {
         scenario: &Scenario,
         learning: &LearningParams,
         algorithm: Algorithm,
-        eyes: Eyes,
+        perceiver: Perceiver,
         seed: u64,
     ) -> Self {
         let (_, agent_seeds) = stream_seeds(seed);
@@ -77,15 +77,20 @@ impl World {
             sway: agent(Dof::Sway),
             yaw: agent(Dof::Yaw),
         };
-        World::with_agents(scenario, agents, eyes, seed)
+        World::with_agents(scenario, agents, perceiver, seed)
     }
 
     /// A world around existing agents (e.g. loaded from a checkpoint).
-    pub fn with_agents(scenario: &Scenario, agents: PerDof<Agent>, eyes: Eyes, seed: u64) -> Self {
+    pub fn with_agents(
+        scenario: &Scenario,
+        agents: PerDof<Agent>,
+        perceiver: Perceiver,
+        seed: u64,
+    ) -> Self {
         let (sim_seed, _) = stream_seeds(seed);
         World {
             sim: Simulator::new(scenario, sim_seed),
-            eyes,
+            perceiver,
             agents,
             surge: SurgeController::new(&scenario.surge, &scenario.model.surge),
             allocator: Allocator::new(&scenario.thrusters),
@@ -119,9 +124,9 @@ impl World {
     /// Runs one episode from a fresh reset to its end.
     pub fn run_episode(&mut self) -> EpisodeResult {
         let mut step = self.sim.reset();
-        self.eyes.reset();
+        self.perceiver.reset();
         loop {
-            let obs = self.eyes.observe(&self.sim, &step);
+            let obs = self.perceiver.observe(&self.sim, &step);
             let kind = step.status;
             let sway = behave(&mut self.agents.sway, &obs, kind);
             let yaw = behave(&mut self.agents.yaw, &obs, kind);

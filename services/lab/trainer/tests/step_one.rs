@@ -2,12 +2,13 @@
 //! episodes, beats the baseline at its best step size, keeps the cable in view, and a run is
 //! reproducible. These run the real trainer library in one process (no IPC).
 
+use config::Eyes;
 use config::{Dof, Preset};
 use learning::Algorithm;
 use std::path::Path;
+use trainer::Setup;
 use trainer::experiment::{self, Curve};
 use trainer::progress::Progress;
-use trainer::{EyesKind, Setup};
 
 fn setup() -> Setup {
     Setup::load(
@@ -100,7 +101,7 @@ fn parallel_runs_equal_sequential_runs() {
 /// Step one with rendered images and perception in the loop instead of the geometry still learns.
 #[test]
 fn learning_with_images_and_perception_in_the_loop_improves_the_returns() {
-    let setup = setup().with_eyes(EyesKind::Images).unwrap();
+    let setup = setup().with_eyes(Eyes::Images).unwrap();
     let runs = experiment::learning_runs(&setup, Algorithm::Nac, 2, 30, 5, &Progress::hidden());
     for dof in Dof::ALL {
         let c = Curve::of(&runs, dof);

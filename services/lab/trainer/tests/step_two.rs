@@ -10,10 +10,11 @@
 //!
 //! `cargo test --release -p trainer --test step_two -- --nocapture` prints the numbers.
 
+use config::Eyes;
 use config::{Dof, LearningParams, Scenario, TwinParams};
 use learning::{Algorithm, Checkpoint};
-use trainer::Eyes;
-use trainer::twin_world::{TrialResult, TwinEyes, TwinWorld};
+use trainer::Perceiver;
+use trainer::twin_world::{TrialResult, TwinWorld};
 use trainer::world::World;
 
 /// The experiment's seed (step one's learning, the twin's starts, drops and image noise).
@@ -22,7 +23,7 @@ const TRIALS: usize = 20;
 
 /// Step one: the trainer's 100 episodes in simulation, saved as the checkpoint step two loads.
 fn step_one(scenario: &Scenario, learning: &LearningParams) -> Checkpoint {
-    let eyes = Eyes::Ideal(scenario.observation.clone());
+    let eyes = Perceiver::Ideal(scenario.observation.clone());
     let mut world = World::new(scenario, learning, Algorithm::Nac, eyes, SEED);
     for _ in 0..100 {
         world.run_episode();
@@ -66,7 +67,7 @@ fn the_simulation_policy_tracks_worse_on_the_twin_and_online_learning_improves_i
     sim.trials = twin.trials.clone();
     sim.render = scenario.render.clone();
     let world = |params: &TwinParams| {
-        TwinWorld::from_checkpoint(&scenario, params, &checkpoint, TwinEyes::Images, SEED).unwrap()
+        TwinWorld::from_checkpoint(&scenario, params, &checkpoint, Eyes::Images, SEED).unwrap()
     };
 
     // The simulation policy, acting only: in simulation, and on the twin from the same starts.
@@ -140,7 +141,7 @@ fn the_same_seed_gives_the_same_trials() {
     let scenario = Scenario::default();
     let learning = LearningParams::default();
     let agents = || {
-        let eyes = Eyes::Ideal(scenario.observation.clone());
+        let eyes = Perceiver::Ideal(scenario.observation.clone());
         let mut world = World::new(&scenario, &learning, Algorithm::Nac, eyes, 3);
         for _ in 0..10 {
             world.run_episode();
@@ -148,14 +149,8 @@ fn the_same_seed_gives_the_same_trials() {
         world.into_agents()
     };
     let run = || {
-        let mut w = TwinWorld::new(
-            &scenario,
-            &TwinParams::default(),
-            agents(),
-            TwinEyes::Images,
-            3,
-        )
-        .unwrap();
+        let mut w =
+            TwinWorld::new(&scenario, &TwinParams::default(), agents(), Eyes::Images, 3).unwrap();
         (0..2).map(|_| w.run_trial()).collect::<Vec<_>>()
     };
     assert_eq!(run(), run());

@@ -54,7 +54,7 @@ fn the_clock_paces_the_frames_and_the_dive_is_recorded() {
     let tmp = tempfile::tempdir().unwrap();
     let config = short_trials(tmp.path(), 1.0);
     let dive = tmp.path().join("dive");
-    let probe = ns.probe(Endpoint::Vehicle);
+    let probe = testkit::probe(&ns, Endpoint::Vehicle);
     let source = TwinFrameSource::open(probe.node(), 320, 240).unwrap();
     let speed = 10.0;
     let mut twin = Process::start(
@@ -149,7 +149,7 @@ fn the_clock_paces_the_frames_and_the_dive_is_recorded() {
 #[test]
 fn lockstep_waits_for_the_answer_and_integrates_it() {
     let ns = Namespace::new("vtls");
-    let probe = ns.probe(Endpoint::Vehicle);
+    let probe = testkit::probe(&ns, Endpoint::Vehicle);
     let source = TwinFrameSource::open(probe.node(), 320, 240).unwrap();
     let mut sink = TwinThrusterSink::open(probe.node(), 3).unwrap();
     let mut twin = Process::start(

@@ -1,15 +1,17 @@
 //! `supervisor`: runs a mesh of services from a file in `config/`. Starts every service, restarts one
 //! that dies (after removing its iceoryx2 leftovers, with backoff and a limit) when the file says so,
-//! stops when the services named in `stop_when` are done, and on SIGINT/SIGTERM stops them all:
-//! SIGTERM, a grace period, then SIGKILL. Every start, exit and restart is logged.
+//! stops when the services named in `stop_when` are done, and on SIGINT/SIGTERM stops them all at
+//! once: SIGTERM to each, a grace period, then SIGKILL (`runtime::process`). Every start, exit and
+//! restart is logged.
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
+use runtime::process::{self, Child, Spawn};
 use std::collections::BTreeMap;
 use std::os::fd::AsRawFd;
 use std::os::unix::net::UnixStream;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitCode, ExitStatus};
+use std::path::PathBuf;
+use std::process::{ExitCode, ExitStatus};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -179,14 +181,17 @@ fn run(args: Args) -> Result<ExitCode> {
             if let State::Restarting { at } = s.state
                 && at <= now
             {
-                s.state = State::Running {
-                    child: spawn(&s.program, &s.cmd.args, &env)
-                        .with_context(|| format!("starting `{}`", s.cmd.name))?,
-                    since: now,
-                };
-                if let State::Running { child, .. } = &s.state {
-                    tracing::info!(service = %s.cmd.name, pid = child.id(), args = ?s.cmd.args, "started");
-                }
+                let child = Spawn::new(&s.program)
+                    .name(&s.cmd.name)
+                    .args(&s.cmd.args)
+                    .envs(env.iter().map(|(k, v)| (k, v)))
+                    // If the supervisor itself is killed, its services get SIGTERM instead of
+                    // running on as orphans.
+                    .die_with_parent()
+                    .start()
+                    .with_context(|| format!("starting `{}`", s.cmd.name))?;
+                tracing::info!(service = %s.cmd.name, pid = child.started_pid(), args = ?s.cmd.args, "started");
+                s.state = State::Running { child, since: now };
             }
         }
         if signals.stop_requested() {
@@ -199,7 +204,7 @@ fn run(args: Args) -> Result<ExitCode> {
             let State::Running { child, since } = &mut s.state else {
                 continue;
             };
-            let Ok(Some(status)) = child.try_wait() else {
+            let Some(status) = child.try_status() else {
                 continue;
             };
             let ran = since.elapsed().as_secs_f64();
@@ -255,11 +260,7 @@ fn run(args: Args) -> Result<ExitCode> {
         signals.wait(next);
     };
 
-    stop_all(
-        &mut services,
-        &signals,
-        Duration::from_secs_f64(args.stop_timeout_s),
-    );
+    stop_all(&mut services, Duration::from_secs_f64(args.stop_timeout_s));
     let cleaned = runtime::remove_dead_nodes(&iox);
     if cleaned > 0 {
         tracing::warn!(
@@ -279,61 +280,22 @@ fn run(args: Args) -> Result<ExitCode> {
     }
 }
 
-fn spawn(program: &Path, args: &[String], env: &[(&str, String)]) -> std::io::Result<Child> {
-    use std::os::unix::process::CommandExt;
-    let mut cmd = Command::new(program);
-    cmd.args(args).envs(env.iter().map(|(k, v)| (k, v)));
-    // SAFETY: prctl in the child before exec, async-signal-safe. If the supervisor itself is killed,
-    // its services get SIGTERM instead of running on as orphans.
-    unsafe {
-        cmd.pre_exec(|| {
-            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
-            Ok(())
-        });
-    }
-    cmd.spawn()
-}
-
 /// SIGTERM to every running service, up to `grace` for them to exit, SIGKILL for the rest.
-fn stop_all(services: &mut [Service], signals: &Signals, grace: Duration) {
-    for s in services.iter() {
-        if let State::Running { child, .. } = &s.state {
-            // SAFETY: kill(2) on our own child.
-            unsafe {
-                libc::kill(child.id() as i32, libc::SIGTERM);
-            }
-        }
-    }
-    let end = Instant::now() + grace;
-    loop {
-        for s in services.iter_mut() {
-            if let State::Running { child, .. } = &mut s.state
-                && let Ok(Some(status)) = child.try_wait()
-            {
-                tracing::info!(service = %s.cmd.name, %status, "stopped");
-                s.state = State::Exited(status);
-            }
-        }
-        let running = services
-            .iter()
-            .filter(|s| matches!(s.state, State::Running { .. }))
-            .count();
-        let left = end.saturating_duration_since(Instant::now());
-        if running == 0 {
-            return;
-        }
-        if left.is_zero() {
-            break;
-        }
-        signals.wait(Some(left));
-    }
-    for s in services.iter_mut() {
-        if let State::Running { child, .. } = &mut s.state {
-            tracing::warn!(service = %s.cmd.name, "did not stop in time: killing it");
-            let _ = child.kill();
-            if let Ok(status) = child.wait() {
-                s.state = State::Exited(status);
-            }
+fn stop_all(services: &mut [Service], grace: Duration) {
+    let mut running: Vec<(&str, &mut Child)> = services
+        .iter_mut()
+        .filter_map(|s| match &mut s.state {
+            State::Running { child, .. } => Some((s.cmd.name.as_str(), child)),
+            _ => None,
+        })
+        .collect();
+    let mut children: Vec<&mut Child> = running.iter_mut().map(|(_, c)| &mut **c).collect();
+    let stopped = process::stop_all(&mut children, grace);
+    for ((name, _), s) in running.iter().zip(stopped) {
+        if s.killed {
+            tracing::warn!(service = %name, "did not stop in time: killed");
+        } else {
+            tracing::info!(service = %name, status = %s.status, "stopped");
         }
     }
 }

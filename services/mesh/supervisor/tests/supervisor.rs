@@ -18,7 +18,7 @@ fn restarting_mesh(dir: &Path) -> std::path::PathBuf {
     path
 }
 
-fn alive(pid: i32) -> bool {
+fn alive(pid: u32) -> bool {
     // A zombie still has a /proc entry; its state is Z.
     std::fs::read_to_string(format!("/proc/{pid}/stat"))
         .map(|s| s.split_whitespace().nth(2).is_none_or(|state| state != "Z"))
@@ -44,30 +44,24 @@ fn a_service_killed_with_sigkill_is_restarted_and_the_loop_resumes_then_sigterm_
     let ns = Namespace::new("sup");
     let dir = tempfile::tempdir().unwrap();
     let mesh = restarting_mesh(dir.path());
-    let probe = ns.probe(Endpoint::Sim);
+    let probe = testkit::probe(&ns, Endpoint::Sim);
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
     let mut supervisor = start(&ns, &mesh, dir.path());
 
     let before = probe
         .wait_for(&setpoints, T, |s| s.stamp.seq > 20)
         .expect("the mesh runs");
-    let perception = testkit::children(supervisor.pid())
-        .into_iter()
-        .find(|(_, name)| name == "perception")
+    let perception = supervisor
+        .signal_service("perception", libc::SIGKILL)
         .expect("perception is one of the supervisor's children");
-    // SAFETY: kill(2) on a process of this test's mesh.
-    unsafe {
-        libc::kill(perception.0, libc::SIGKILL);
-    }
     // The loop resumes well past the step at which perception died, with a new perception process.
     let after = probe
         .wait_for(&setpoints, T, |s| s.stamp.seq > before.stamp.seq + 50)
         .unwrap_or_else(|| panic!("the loop did not resume:\n{}", supervisor.log()));
-    let new_perception = testkit::children(supervisor.pid())
-        .into_iter()
-        .find(|(_, name)| name == "perception")
+    let new_perception = supervisor
+        .service("perception")
         .expect("perception was restarted");
-    assert_ne!(new_perception.0, perception.0);
+    assert_ne!(new_perception, perception);
     let log = supervisor.log();
     assert!(
         log.contains("died") && log.contains("restarting"),
@@ -78,7 +72,7 @@ fn a_service_killed_with_sigkill_is_restarted_and_the_loop_resumes_then_sigterm_
         after.stamp.seq, before.stamp.seq
     );
 
-    let pids: Vec<i32> = testkit::children(supervisor.pid())
+    let pids: Vec<u32> = testkit::children(supervisor.pid())
         .into_iter()
         .map(|(p, _)| p)
         .collect();

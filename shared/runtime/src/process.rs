@@ -1,0 +1,408 @@
+//! Processes this program starts, managed in one place for the supervisor, the tests and the
+//! benchmarks: spawned with their output in a log file (or inherited), optionally bound to die with
+//! their parent; signalled only while they are this program's unreaped children (never pid 0, never
+//! a pid the kernel may have given to someone else); stopped with SIGTERM, a grace period, then
+//! SIGKILL; their exit awaited by blocking on a pidfd, not by polling.
+//!
+//! Linux only: `prctl(PR_SET_PDEATHSIG)`, `pidfd_open(2)` (kernel 5.3 or later), `/proc`.
+
+use std::ffi::OsStr;
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+/// How to start a process.
+pub struct Spawn {
+    name: String,
+    cmd: Command,
+    log: Option<PathBuf>,
+    die_with_parent: bool,
+}
+
+impl Spawn {
+    /// `program`, named after its file name, with stdin closed and output inherited.
+    pub fn new(program: impl AsRef<Path>) -> Spawn {
+        let program = program.as_ref();
+        let name = program
+            .file_name()
+            .unwrap_or(program.as_os_str())
+            .to_string_lossy()
+            .into_owned();
+        Spawn {
+            name,
+            cmd: Command::new(program),
+            log: None,
+            die_with_parent: false,
+        }
+    }
+
+    /// The name logs and errors use (default: the program's file name).
+    pub fn name(mut self, name: impl Into<String>) -> Self {
+        self.name = name.into();
+        self
+    }
+
+    pub fn arg(mut self, arg: impl AsRef<OsStr>) -> Self {
+        self.cmd.arg(arg);
+        self
+    }
+
+    pub fn args<S: AsRef<OsStr>>(mut self, args: impl IntoIterator<Item = S>) -> Self {
+        self.cmd.args(args);
+        self
+    }
+
+    pub fn env(mut self, key: impl AsRef<OsStr>, value: impl AsRef<OsStr>) -> Self {
+        self.cmd.env(key, value);
+        self
+    }
+
+    pub fn envs<K: AsRef<OsStr>, V: AsRef<OsStr>>(
+        mut self,
+        vars: impl IntoIterator<Item = (K, V)>,
+    ) -> Self {
+        self.cmd.envs(vars);
+        self
+    }
+
+    /// Stdout and stderr both go to this file (created, or truncated).
+    pub fn log(mut self, path: impl Into<PathBuf>) -> Self {
+        self.log = Some(path.into());
+        self
+    }
+
+    /// The process gets SIGTERM when this one dies, so nothing runs on as an orphan.
+    pub fn die_with_parent(mut self) -> Self {
+        self.die_with_parent = true;
+        self
+    }
+
+    /// Starts the process.
+    pub fn start(mut self) -> std::io::Result<Child> {
+        self.cmd.stdin(Stdio::null());
+        if let Some(log) = &self.log {
+            let file = std::fs::File::create(log)?;
+            self.cmd.stdout(file.try_clone()?).stderr(file);
+        }
+        if self.die_with_parent {
+            // SAFETY: prctl in the child before exec is async-signal-safe.
+            unsafe {
+                self.cmd.pre_exec(|| {
+                    libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+                    Ok(())
+                });
+            }
+        }
+        let inner = self.cmd.spawn()?;
+        let pidfd = pidfd_open(inner.id());
+        Ok(Child {
+            name: self.name,
+            inner,
+            pidfd,
+            status: None,
+            log: self.log,
+        })
+    }
+}
+
+/// A pidfd of `pid`: readable once the process has exited. `None` on kernels without pidfd_open
+/// (the waits then poll).
+fn pidfd_open(pid: u32) -> Option<OwnedFd> {
+    // SAFETY: pidfd_open(2) with a pid and no flags; the result is a new fd or -1.
+    let fd = unsafe { libc::syscall(libc::SYS_pidfd_open, pid as libc::c_long, 0 as libc::c_long) };
+    // SAFETY: a non-negative result is an fd this process now owns.
+    (fd >= 0).then(|| unsafe { OwnedFd::from_raw_fd(fd as i32) })
+}
+
+/// A process this program started.
+pub struct Child {
+    name: String,
+    inner: std::process::Child,
+    pidfd: Option<OwnedFd>,
+    /// Set once the exit has been collected: from then on the pid is not ours.
+    status: Option<ExitStatus>,
+    log: Option<PathBuf>,
+}
+
+impl Child {
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Its pid while it is ours (until its exit is collected).
+    pub fn pid(&self) -> Option<u32> {
+        self.status.is_none().then(|| self.inner.id())
+    }
+
+    /// Its pid as started, for the record (it may belong to another process by now).
+    pub fn started_pid(&self) -> u32 {
+        self.inner.id()
+    }
+
+    /// Sends `signal`; `false` once its exit has been collected (the pid may be another's by then).
+    pub fn signal(&self, signal: i32) -> bool {
+        let Some(pid) = self.pid() else {
+            return false;
+        };
+        // A pid of 0 or below would signal a whole process group: never.
+        let pid = libc::pid_t::try_from(pid).unwrap_or(0);
+        if pid <= 0 {
+            return false;
+        }
+        // SAFETY: kill(2) on our own child, not reaped yet (a zombie at worst), so the pid is ours.
+        unsafe { libc::kill(pid, signal) == 0 }
+    }
+
+    /// Its exit status, if it has exited (collected now or earlier).
+    pub fn try_status(&mut self) -> Option<ExitStatus> {
+        if self.status.is_none()
+            && let Ok(Some(status)) = self.inner.try_wait()
+        {
+            self.status = Some(status);
+        }
+        self.status
+    }
+
+    pub fn is_running(&mut self) -> bool {
+        self.try_status().is_none()
+    }
+
+    /// Blocks until it exits or `timeout` passes.
+    pub fn wait_timeout(&mut self, timeout: Duration) -> Option<ExitStatus> {
+        let end = Instant::now() + timeout;
+        loop {
+            if let Some(status) = self.try_status() {
+                return Some(status);
+            }
+            let left = end.checked_duration_since(Instant::now())?;
+            wait_readable(&[self.pidfd.as_ref()], left);
+        }
+    }
+
+    /// SIGTERM, up to `grace` to exit, then SIGKILL.
+    pub fn stop(&mut self, grace: Duration) -> ExitStatus {
+        stop_all(&mut [self], grace)[0].status
+    }
+
+    /// SIGKILL: no chance to clean up.
+    pub fn kill(&mut self) -> ExitStatus {
+        if self.try_status().is_none() {
+            self.signal(libc::SIGKILL);
+        }
+        self.collect()
+    }
+
+    /// Blocks until its exit is collected.
+    fn collect(&mut self) -> ExitStatus {
+        if let Some(s) = self.status {
+            return s;
+        }
+        let status = self
+            .inner
+            .wait()
+            .unwrap_or_else(|_| ExitStatus::from_raw(libc::SIGKILL));
+        self.status = Some(status);
+        status
+    }
+
+    /// Its log file, if its output goes to one.
+    pub fn log_path(&self) -> Option<&Path> {
+        self.log.as_deref()
+    }
+
+    /// What it has logged so far (empty without a log file).
+    pub fn log(&self) -> String {
+        self.log
+            .as_ref()
+            .and_then(|p| std::fs::read_to_string(p).ok())
+            .unwrap_or_default()
+    }
+
+    /// The last `n` lines of its log, headed by its name, for an error message.
+    pub fn tail(&self, n: usize) -> String {
+        let log = self.log();
+        let lines: Vec<&str> = log.lines().collect();
+        format!(
+            "----- last lines of {}'s log -----\n{}",
+            self.name,
+            lines[lines.len().saturating_sub(n)..].join("\n")
+        )
+    }
+}
+
+impl Drop for Child {
+    /// A child is never left running behind its handle.
+    fn drop(&mut self) {
+        if self.try_status().is_none() {
+            self.stop(Duration::from_secs(5));
+        }
+    }
+}
+
+/// How a child ended when it was stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Stopped {
+    pub status: ExitStatus,
+    /// It outlived the grace period and was killed.
+    pub killed: bool,
+}
+
+/// SIGTERM to each running child, up to `grace` for all to exit (blocking on their pidfds), then
+/// SIGKILL for the rest. Every exit is collected; the result is in the children's order.
+pub fn stop_all(children: &mut [&mut Child], grace: Duration) -> Vec<Stopped> {
+    for c in children.iter_mut() {
+        if c.try_status().is_none() {
+            c.signal(libc::SIGTERM);
+        }
+    }
+    wait_all(children, grace);
+    children
+        .iter_mut()
+        .map(|c| {
+            let killed = c.try_status().is_none();
+            if killed {
+                c.signal(libc::SIGKILL);
+            }
+            Stopped {
+                status: c.collect(),
+                killed,
+            }
+        })
+        .collect()
+}
+
+/// Blocks until every child has exited or `timeout` passes; `true` if all exited.
+pub fn wait_all(children: &mut [&mut Child], timeout: Duration) -> bool {
+    let end = Instant::now() + timeout;
+    loop {
+        let running: Vec<Option<&OwnedFd>> = children
+            .iter_mut()
+            .filter_map(|c| {
+                c.try_status()
+                    .is_none()
+                    .then_some(())
+                    .map(|_| c.pidfd.as_ref())
+            })
+            .collect();
+        if running.is_empty() {
+            return true;
+        }
+        let Some(left) = end.checked_duration_since(Instant::now()) else {
+            return false;
+        };
+        wait_readable(&running, left);
+    }
+}
+
+/// Blocks until one of the pidfds is readable (its process exited) or `timeout` passes. Without a
+/// pidfd (a kernel older than 5.3) it naps 5 ms: the caller checks again.
+fn wait_readable(fds: &[Option<&OwnedFd>], timeout: Duration) {
+    if fds.iter().any(Option::is_none) {
+        std::thread::park_timeout(timeout.min(Duration::from_millis(5)));
+        return;
+    }
+    let mut polls: Vec<libc::pollfd> = fds
+        .iter()
+        .flatten()
+        .map(|fd| libc::pollfd {
+            fd: fd.as_raw_fd(),
+            events: libc::POLLIN,
+            revents: 0,
+        })
+        .collect();
+    let ms = timeout.as_millis().clamp(1, i32::MAX as u128) as i32;
+    // SAFETY: valid pollfds for the call's duration; EINTR just returns early.
+    unsafe {
+        libc::poll(polls.as_mut_ptr(), polls.len() as libc::nfds_t, ms);
+    }
+}
+
+/// The children of process `pid` (started by any of its threads), in pid order: (pid, program
+/// name), e.g. a supervisor's services.
+pub fn children(pid: u32) -> Vec<(u32, String)> {
+    let mut pids: Vec<u32> = std::fs::read_dir(format!("/proc/{pid}/task"))
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|task| std::fs::read_to_string(task.path().join("children")).ok())
+        .flat_map(|s| {
+            s.split_whitespace()
+                .filter_map(|p| p.parse().ok())
+                .collect::<Vec<u32>>()
+        })
+        .collect();
+    pids.sort_unstable();
+    pids.dedup();
+    pids.into_iter()
+        .map(|p| {
+            let comm = std::fs::read_to_string(format!("/proc/{p}/comm")).unwrap_or_default();
+            (p, comm.trim().to_owned())
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sh(script: &str) -> Spawn {
+        Spawn::new("/bin/sh").arg("-c").arg(script)
+    }
+
+    #[test]
+    fn an_exit_is_awaited_without_polling_and_collected_once() {
+        let mut c = sh("exit 3").start().unwrap();
+        let status = c.wait_timeout(Duration::from_secs(10)).expect("it exits");
+        assert_eq!(status.code(), Some(3));
+        assert_eq!(c.pid(), None, "a collected child has no pid of ours");
+        assert!(!c.signal(libc::SIGTERM), "and is never signalled");
+        assert_eq!(c.try_status(), Some(status));
+    }
+
+    #[test]
+    fn stop_sends_sigterm_then_sigkill_after_the_grace() {
+        // Ignores SIGTERM: only SIGKILL ends it.
+        let dir = tempfile::tempdir().unwrap();
+        let ready = dir.path().join("ready");
+        let mut c = sh(&format!(
+            "trap '' TERM; touch {}; while :; do sleep 1; done",
+            ready.display()
+        ))
+        .start()
+        .unwrap();
+        // The trap is set once the file exists: a sleep-free wait on its appearance.
+        let end = Instant::now() + Duration::from_secs(10);
+        while !ready.exists() {
+            assert!(Instant::now() < end, "the shell did not start");
+            std::thread::yield_now();
+        }
+        let t0 = Instant::now();
+        let status = c.stop(Duration::from_millis(300));
+        assert!(t0.elapsed() >= Duration::from_millis(300));
+        assert_eq!(status.signal(), Some(libc::SIGKILL));
+        let mut polite = sh("while :; do sleep 1; done").start().unwrap();
+        assert_eq!(
+            polite.stop(Duration::from_secs(10)).signal(),
+            Some(libc::SIGTERM)
+        );
+    }
+
+    #[test]
+    fn output_goes_to_the_log_and_a_dropped_child_is_stopped() {
+        let dir = tempfile::tempdir().unwrap();
+        let log = dir.path().join("out.log");
+        let mut c = sh("echo hello; echo oops >&2").log(&log).start().unwrap();
+        c.wait_timeout(Duration::from_secs(10)).unwrap();
+        assert_eq!(c.log(), "hello\noops\n");
+        assert!(c.tail(1).ends_with("oops"));
+        let c = sh("while :; do sleep 1; done").start().unwrap();
+        let pid = c.started_pid();
+        drop(c);
+        assert!(
+            !Path::new(&format!("/proc/{pid}")).exists(),
+            "the dropped child is stopped and collected"
+        );
+    }
+}
