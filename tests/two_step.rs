@@ -30,7 +30,7 @@ fn read(path: &Path) -> RunRecord {
 }
 
 fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len() as f64
+    stats::mean(v.iter().copied())
 }
 
 fn returns(r: &RunRecord, dof: Dof) -> &[f64] {

@@ -113,5 +113,5 @@ fn seen_of(o: &CableObservationMsg) -> Seen {
 
 /// The mean of `values`.
 pub fn mean(values: &[f64]) -> f64 {
-    values.iter().sum::<f64>() / values.len().max(1) as f64
+    stats::mean(values.iter().copied())
 }

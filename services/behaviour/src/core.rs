@@ -147,7 +147,7 @@ impl Behaviour {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use messages::CableTruth;
+    use messages::CableObservationData;
 
     fn params() -> (Scenario, LearningParams) {
         let mut learning = LearningParams::default();
@@ -166,7 +166,7 @@ mod tests {
         let t = seq as f64;
         CableObservationMsg {
             stamp: Stamp::new(seq, seq * 200_000_000, episode, step, status),
-            observation: CableTruth {
+            observation: CableObservationData {
                 found: found as u8,
                 x_g: 0.3 * (0.4 * t).sin(),
                 x_g_rate: 0.2 * (0.4 * t).cos(),

@@ -8,8 +8,8 @@
 use config::{Dof, LearningParams, Scenario};
 use learning::{Agent, AgentState, Algorithm, Checkpoint, EpisodeSummary, LearnerState};
 use messages::{
-    CableObservationMsg, CableTruth, DofCommand, Endpoint, Inbox, LearningStats, Outbox, Stamp,
-    StepStatus, topics,
+    CableObservationData, CableObservationMsg, DofCommand, Endpoint, Inbox, LearningStats, Outbox,
+    Stamp, StepStatus, topics,
 };
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -92,7 +92,7 @@ fn episode(
             };
             CableObservationMsg {
                 stamp: Stamp::new(seq, seq * 200_000_000, episode, step, status),
-                observation: CableTruth {
+                observation: CableObservationData {
                     found: !missed.contains(&step) as u8,
                     x_g: 0.35 * (0.37 * t).sin(),
                     x_g_rate: 0.3 * (0.37 * t).cos(),

@@ -15,7 +15,7 @@
 //! On the vehicle endpoint the camera reads a frame source instead ([`vehicle`]).
 
 use config::{Eyes, ObservationLimits, Scenario};
-use messages::{CableTruth, CameraFrameHeader, Stamp, VehicleStateMsg};
+use messages::{CableObservationData, CameraFrameHeader, Stamp, VehicleStateMsg};
 use model::{Cable, Camera};
 use vision::{Renderer, VisionError};
 
@@ -62,11 +62,11 @@ impl SimCamera {
     }
 
     /// The geometric camera's observation of a state (the frame's truth).
-    pub fn truth(&self, state: &VehicleStateMsg) -> CableTruth {
+    pub fn truth(&self, state: &VehicleStateMsg) -> CableObservationData {
         let obs =
             self.geometry
                 .observe(&state.pose(), &state.pose_rate(), &self.cable, &self.limits);
-        CableTruth::from(&obs)
+        CableObservationData::from(&obs)
     }
 
     /// The frame's header: the state's stamp unchanged, the camera's size, the truth.
@@ -156,7 +156,7 @@ mod tests {
             &s.observation,
         );
         assert!(want.found);
-        assert_eq!(h.truth, CableTruth::from(&want));
+        assert_eq!(h.truth, CableObservationData::from(&want));
         assert_eq!(cam.image_len(), 0);
         let mut cam = cam;
         assert!(cam.render(&st, &mut []).is_ok());

@@ -171,7 +171,7 @@ impl VehicleCamera {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use messages::{CableTruth, StepStatus};
+    use messages::{CableObservationData, StepStatus};
 
     fn meta(seq: u64, ms: u64) -> FrameMeta {
         FrameMeta {
@@ -182,7 +182,7 @@ mod tests {
             trial: 2,
             step: seq as u32,
             status: StepStatus::Running,
-            truth: Some(CableTruth {
+            truth: Some(CableObservationData {
                 found: 1,
                 x_g: 0.1,
                 ..Default::default()

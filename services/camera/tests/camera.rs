@@ -2,7 +2,8 @@
 
 use config::{Scenario, derive_seed};
 use messages::{
-    CableTruth, CameraFrameHeader, Endpoint, FrameInbox, Stamp, StepStatus, VehicleStateMsg, topics,
+    CableObservationData, CameraFrameHeader, Endpoint, FrameInbox, Stamp, StepStatus,
+    VehicleStateMsg, topics,
 };
 use model::{Cable, Pose, VehicleState, Velocity};
 use std::time::{Duration, Instant};
@@ -37,7 +38,7 @@ fn state(seq: u64) -> VehicleStateMsg {
 }
 
 /// The geometric camera's truth for a state.
-fn truth(scenario: &Scenario, st: &VehicleStateMsg) -> CableTruth {
+fn truth(scenario: &Scenario, st: &VehicleStateMsg) -> CableObservationData {
     let obs = model::Camera::new(&scenario.camera).observe(
         &st.pose(),
         &st.pose_rate(),
@@ -45,7 +46,7 @@ fn truth(scenario: &Scenario, st: &VehicleStateMsg) -> CableTruth {
         &scenario.observation,
     );
     assert!(obs.found, "the test's pose sees the cable");
-    CableTruth::from(&obs)
+    CableObservationData::from(&obs)
 }
 
 /// Blocks until a frame accepted by `want` arrives (header and a copy of the image).

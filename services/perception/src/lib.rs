@@ -13,7 +13,7 @@
 //! a broken frame must not stop the vehicle's loop.
 
 use config::{Eyes, Scenario};
-use messages::{CableObservationMsg, CableTruth, CameraFrameHeader, Stamp};
+use messages::{CableObservationData, CableObservationMsg, CameraFrameHeader, Stamp};
 use vision::{ImageView, Perception, VisionError};
 
 /// One frame's result.
@@ -84,7 +84,7 @@ impl Observer {
                 Observed {
                     msg: CableObservationMsg {
                         stamp,
-                        observation: CableTruth::from(&obs),
+                        observation: CableObservationData::from(&obs),
                     },
                     bad_frame: None,
                 }
@@ -92,7 +92,7 @@ impl Observer {
             Err(e) => Observed {
                 msg: CableObservationMsg {
                     stamp,
-                    observation: CableTruth::default(),
+                    observation: CableObservationData::default(),
                 },
                 bad_frame: Some(e),
             },
@@ -110,7 +110,7 @@ mod tests {
             stamp: Stamp::new(seq, seq * 200_000_000, episode, step, StepStatus::Running),
             width: 320,
             height: 240,
-            truth: CableTruth {
+            truth: CableObservationData {
                 found: 1,
                 theta: 0.2,
                 x_g: -0.1,

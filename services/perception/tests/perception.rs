@@ -2,8 +2,8 @@
 
 use config::Scenario;
 use messages::{
-    CableObservationMsg, CableTruth, CameraFrameHeader, Endpoint, FrameOutbox, Inbox, Stamp,
-    StepStatus, topics,
+    CableObservationData, CableObservationMsg, CameraFrameHeader, Endpoint, FrameOutbox, Inbox,
+    Stamp, StepStatus, topics,
 };
 use model::{Cable, Camera, Pose, PoseRate};
 use std::time::Duration;
@@ -21,7 +21,7 @@ fn stamp(seq: u64, step: u32) -> Stamp {
     Stamp::new(seq, seq * 200_000_000, 0, step, StepStatus::Running)
 }
 
-fn header(seq: u64, step: u32, truth: CableTruth) -> CameraFrameHeader {
+fn header(seq: u64, step: u32, truth: CableObservationData) -> CameraFrameHeader {
     CameraFrameHeader {
         stamp: stamp(seq, step),
         width: W as u32,
@@ -98,7 +98,7 @@ fn images_give_the_line_the_geometric_camera_sees() {
     for (seq, (x_g, theta_deg)) in [(1, (0.12, 20.0)), (2, (-0.2, -35.0))] {
         let (image, line) = rendered(&scenario, x_g, f64::to_radians(theta_deg));
         // No truth in the header: the line must come from the image.
-        let h = header(seq, 0, CableTruth::default());
+        let h = header(seq, 0, CableObservationData::default());
         r.send(h, &image);
         let obs = r.observation(seq);
         assert_eq!(obs.stamp, h.stamp, "the stamp is copied unchanged");
@@ -123,7 +123,7 @@ fn images_give_the_line_the_geometric_camera_sees() {
 fn ideal_eyes_pass_the_truth_on() {
     let ns = Namespace::new("pcid");
     let r = rig(&ns, "ideal");
-    let truth = CableTruth {
+    let truth = CableObservationData {
         found: 1,
         rho: -12.5,
         theta: 0.25,
@@ -147,7 +147,7 @@ fn a_bad_frame_is_reported_not_found_and_perception_goes_on() {
     let mut r = rig(&ns, "images");
     let scenario = scenario();
     // Shorter than width * height.
-    r.send(header(1, 0, CableTruth::default()), &[128; 100]);
+    r.send(header(1, 0, CableObservationData::default()), &[128; 100]);
     let bad = r.observation(1);
     assert_eq!(bad.observation.found, 0);
     let log = r.perception.log();
@@ -159,13 +159,13 @@ fn a_bad_frame_is_reported_not_found_and_perception_goes_on() {
 
     // The next step's good frame is perceived.
     let (image, line) = rendered(&scenario, 0.05, 0.1);
-    r.send(header(2, 1, CableTruth::default()), &image);
+    r.send(header(2, 1, CableObservationData::default()), &image);
     let good = r.observation(2);
     assert_eq!(good.observation.found, 1);
     assert!((good.observation.x_g - line.x_g).abs() < 0.01);
 
     // A step is perceived once: its frame again, even broken, gets the same observation.
-    r.send(header(2, 1, CableTruth::default()), &[0; 10]);
+    r.send(header(2, 1, CableObservationData::default()), &[0; 10]);
     assert_eq!(r.observation(2), good);
     assert!(r.perception.is_running());
 }

@@ -5,7 +5,7 @@
 use camera::SimCamera;
 use config::Eyes;
 use config::{Scenario, derive_seed};
-use messages::CableTruth;
+use messages::CableObservationData;
 use perception::Observer;
 use simulator::Simulator;
 use simulator::lockstep::Published;
@@ -37,9 +37,9 @@ fn camera_and_perception_stages_match_the_trainers_eyes_bit_for_bit() {
             trainer_eyes.reset();
             episodes += 1;
         }
-        let trainer = CableTruth::from(&trainer_eyes.observe(&step.state));
+        let trainer = CableObservationData::from(&trainer_eyes.observe(&step.state));
         assert_eq!(image, trainer_eyes.frame().data(), "frame of seq {seq}");
-        let bits = |t: &CableTruth| {
+        let bits = |t: &CableObservationData| {
             [
                 t.rho,
                 t.theta,

@@ -1,7 +1,7 @@
 //! The surge controller as a process: cable observations over iceoryx2 in, surge commands out.
 
 use config::Scenario;
-use messages::{CableObservationMsg, CableTruth, Endpoint, Stamp, StepStatus, topics};
+use messages::{CableObservationData, CableObservationMsg, Endpoint, Stamp, StepStatus, topics};
 use std::time::Duration;
 use testkit::{Namespace, Probe, Process};
 
@@ -10,7 +10,7 @@ const T: Duration = Duration::from_secs(10);
 fn observation(seq: u64, found: bool, x_g: f64, theta_deg: f64) -> CableObservationMsg {
     CableObservationMsg {
         stamp: Stamp::new(seq, seq * 200_000_000, 0, seq as u32, StepStatus::Running),
-        observation: CableTruth {
+        observation: CableObservationData {
             found: found as u8,
             x_g,
             theta: theta_deg.to_radians(),

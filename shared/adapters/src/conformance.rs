@@ -12,8 +12,8 @@
 //! The suites panic with the implementation's name and what failed, like any test assertion.
 
 use crate::{
-    AdapterError, CableTruth, Frame, FrameMeta, FrameSource, Read, Stamp, StepStatus, ThrusterSink,
-    Wake,
+    AdapterError, CableObservationData, Frame, FrameMeta, FrameSource, Read, Stamp, StepStatus,
+    ThrusterSink, Wake,
 };
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::time::{Duration, Instant};
@@ -89,7 +89,7 @@ fn frame(
         trial,
         step,
         status,
-        truth: Some(CableTruth {
+        truth: Some(CableObservationData {
             found: (status != StepStatus::Lost) as u8,
             rho: seq as f64 * 1.5,
             theta: 0.01 * seq as f64,

@@ -23,7 +23,7 @@ pub mod twin;
 
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::ipc;
-pub use messages::{CableTruth, Stamp, StepStatus};
+pub use messages::{CableObservationData, Stamp, StepStatus};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -46,7 +46,7 @@ pub struct FrameMeta {
     pub status: StepStatus,
     /// The cable's true line in this frame, where the source knows it (the twin does; a dive when it
     /// was recorded from the twin); `None` otherwise.
-    pub truth: Option<CableTruth>,
+    pub truth: Option<CableObservationData>,
 }
 
 impl Default for FrameMeta {

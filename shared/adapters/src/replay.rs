@@ -31,14 +31,16 @@
 //! was taken (non-decreasing; the replay is paced by it), `trial` and `step` the trial and the step
 //! within it, `status` `running`, `lost` or `time_limit` (the trial ended with this frame), `file`
 //! the frame's image, relative to `DIR` (no `..`). The truth columns are those of
-//! [`messages::CableTruth`]: `found` 0 or 1, the others numbers (radians, fractions of the image,
+//! [`messages::CableObservationData`]: `found` 0 or 1, the others numbers (radians, fractions of the image,
 //! per second). Lines starting with `#` after the first two are comments.
 //!
 //! A broken index is refused when the dive is opened, naming the line; a missing or corrupt frame
 //! file is an error when its turn comes, and the replay goes on with the next frame.
 
 use crate::record::{parse_status, status_name};
-use crate::{AdapterError, CableTruth, Frame, FrameMeta, FrameSource, Read, SeqOrigin, Wake};
+use crate::{
+    AdapterError, CableObservationData, Frame, FrameMeta, FrameSource, Read, SeqOrigin, Wake,
+};
 use std::cell::Cell;
 use std::io::{BufRead, BufWriter, Write};
 use std::path::{Component, Path, PathBuf};
@@ -423,7 +425,7 @@ fn parse_entry(line: &str, width: u32, height: u32, truth: bool) -> Result<Entry
             "1" => 1,
             other => return Err(format!("found `{other}` must be 0 or 1")),
         };
-        Some(CableTruth {
+        Some(CableObservationData {
             found,
             rho: num(7, "rho")?,
             theta: num(8, "theta")?,

@@ -101,11 +101,13 @@ impl VehicleStateMsg {
     }
 }
 
-/// A cable observation's numbers, as carried in messages.
+/// A cable observation's numbers as carried in messages (`model::CableObservation` in `#[repr(C)]`):
+/// perception's estimate in [`CableObservationMsg`], the geometric camera's truth in
+/// [`CameraFrameHeader`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::CableTruth/1")]
-pub struct CableTruth {
+#[type_name("cabletrack::CableObservationData/1")]
+pub struct CableObservationData {
     /// 1 when the cable was found (in view), 0 otherwise.
     pub found: u8,
     pub _reserved: [u8; 7],
@@ -118,9 +120,9 @@ pub struct CableTruth {
     pub confidence: f64,
 }
 
-impl From<&model::CableObservation> for CableTruth {
+impl From<&model::CableObservation> for CableObservationData {
     fn from(o: &model::CableObservation) -> Self {
-        CableTruth {
+        CableObservationData {
             found: o.found as u8,
             _reserved: [0; 7],
             rho: o.rho,
@@ -134,8 +136,8 @@ impl From<&model::CableObservation> for CableTruth {
     }
 }
 
-impl From<&CableTruth> for model::CableObservation {
-    fn from(t: &CableTruth) -> Self {
+impl From<&CableObservationData> for model::CableObservation {
+    fn from(t: &CableObservationData) -> Self {
         model::CableObservation {
             found: t.found != 0,
             rho: t.rho,
@@ -160,7 +162,7 @@ pub struct CameraFrameHeader {
     pub height: u32,
     /// The geometric camera's line for this frame, where it is known (simulation); `found = 0`
     /// otherwise. Ideal perception passes it on; image perception is checked against it.
-    pub truth: CableTruth,
+    pub truth: CableObservationData,
 }
 
 /// What perception found in a frame.
@@ -169,7 +171,7 @@ pub struct CameraFrameHeader {
 #[type_name("cabletrack::CableObservation/1")]
 pub struct CableObservationMsg {
     pub stamp: Stamp,
-    pub observation: CableTruth,
+    pub observation: CableObservationData,
 }
 
 impl CableObservationMsg {

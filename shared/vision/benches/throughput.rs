@@ -17,22 +17,17 @@ use vision::{Frame, Perception, Renderer, SimulatedVision};
 const FRAMES: usize = 200;
 const RUNS: usize = 9;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 /// Median frames per second over `RUNS` runs of `run`, which processes `FRAMES` frames.
 fn fps(mut run: impl FnMut()) -> f64 {
     run(); // warm-up
-    let rates = (0..RUNS)
+    let rates: Vec<f64> = (0..RUNS)
         .map(|_| {
             let start = Instant::now();
             run();
             FRAMES as f64 / start.elapsed().as_secs_f64()
         })
         .collect();
-    median(rates)
+    stats::median(rates)
 }
 
 fn main() {

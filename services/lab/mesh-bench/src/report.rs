@@ -2,7 +2,7 @@
 
 use crate::ring::Role;
 use crate::runs::{InProcessRun, MeshRun, ProcessUse, RingRun};
-use crate::stats::{Summary, median, median_summary};
+use crate::stats::{Summary, median};
 use crate::timeline::{HOPS, SLOWEST, SlowStep};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write;
@@ -230,8 +230,8 @@ impl Results {
         );
         let _ = writeln!(out, "|---|---|---:|---:|---:|---:|---:|---:|");
         for (k, hop) in HOPS.iter().enumerate() {
-            let a = median_summary(&mesh_hops[k]);
-            let b = median_summary(&ring_hops[k]);
+            let a = Summary::median_of(&mesh_hops[k]);
+            let b = Summary::median_of(&ring_hops[k]);
             let name = match hop.name {
                 "step" => "**step** (target p99 < 5 ms)",
                 other => other,
@@ -291,7 +291,7 @@ impl Results {
         );
 
         // What the probe adds.
-        let delay = median_summary(
+        let delay = Summary::median_of(
             &self
                 .ring_probe
                 .iter()
@@ -321,7 +321,7 @@ impl Results {
             100.0 * m.probe_cost_mesh,
             100.0 * m.probe_cost_ring,
         );
-        let ring_step = median_summary(&self.ring.iter().map(|r| r.step).collect::<Vec<_>>());
+        let ring_step = Summary::median_of(&self.ring.iter().map(|r| r.step).collect::<Vec<_>>());
         let _ = write!(
             out,
             "Bare ring without the probe, exact (sender-stamped) one-way latency per hop, p50/p99 µs: "
@@ -329,7 +329,7 @@ impl Results {
         let parts: Vec<String> = Role::ALL
             .iter()
             .map(|role| {
-                let s = median_summary(
+                let s = Summary::median_of(
                     &self
                         .ring
                         .iter()

@@ -13,6 +13,7 @@
 use config::Eyes;
 use config::{Dof, LearningParams, Scenario, TwinParams};
 use learning::{Algorithm, Checkpoint};
+use stats::mean;
 use std::path::PathBuf;
 use trainer::Perceiver;
 use trainer::twin_world::{TrialResult, TwinWorld};
@@ -24,11 +25,6 @@ fn arg<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> T {
         .and_then(|i| args.get(i + 1))
         .and_then(|v| v.parse().ok())
         .unwrap_or(default)
-}
-
-fn mean(v: impl IntoIterator<Item = f64>) -> f64 {
-    let v: Vec<f64> = v.into_iter().collect();
-    v.iter().sum::<f64>() / v.len().max(1) as f64
 }
 
 fn returns(run: &[TrialResult], dof: Dof) -> f64 {

@@ -136,7 +136,7 @@ fn traces(title: &str, fig: (&str, &str), episodes: &[(String, &Vec<TracePoint>)
 }
 
 fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len().max(1) as f64
+    stats::mean(v.iter().copied())
 }
 
 /// Writes the report of `dir`; returns the path of `report.md`.

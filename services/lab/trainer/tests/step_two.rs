@@ -13,6 +13,7 @@
 use config::Eyes;
 use config::{Dof, LearningParams, Scenario, TwinParams};
 use learning::{Algorithm, Checkpoint};
+use stats::mean;
 use trainer::Perceiver;
 use trainer::twin_world::{TrialResult, TwinWorld};
 use trainer::world::World;
@@ -40,11 +41,6 @@ fn step_one(scenario: &Scenario, learning: &LearningParams) -> Checkpoint {
 
 fn trials(world: &mut TwinWorld, n: usize) -> Vec<TrialResult> {
     (0..n).map(|_| world.run_trial()).collect()
-}
-
-fn mean(v: impl Iterator<Item = f64>) -> f64 {
-    let v: Vec<f64> = v.collect();
-    v.iter().sum::<f64>() / v.len() as f64
 }
 
 fn per_step(run: &[TrialResult], dof: Dof) -> f64 {

@@ -21,7 +21,7 @@
 use crate::plant::TwinPlant;
 use adapters::FrameMeta;
 use config::{ResetParams, Scenario, TwinParams, derive_seed};
-use messages::{CableTruth, StepStatus};
+use messages::{CableObservationData, StepStatus};
 use model::{Cable, Camera, PoseRate, VehicleState};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -42,7 +42,7 @@ pub struct Shot {
     pub state: VehicleState,
     pub rate: PoseRate,
     /// What the mounted camera truly sees (the line and its exact rates).
-    pub truth: CableTruth,
+    pub truth: CableObservationData,
     /// Lost on the way: the vehicle side never sees this frame.
     pub dropped: bool,
 }
@@ -129,12 +129,13 @@ impl TwinEye {
     }
 
     /// What the camera truly sees from a state moving at `rate`.
-    pub fn truth(&self, state: &VehicleState, rate: &PoseRate) -> CableTruth {
-        CableTruth::from(
-            &self
-                .camera
-                .observe(&state.pose, rate, &self.cable, &self.limits),
-        )
+    pub fn truth(&self, state: &VehicleState, rate: &PoseRate) -> CableObservationData {
+        CableObservationData::from(&self.camera.observe(
+            &state.pose,
+            rate,
+            &self.cable,
+            &self.limits,
+        ))
     }
 
     /// Draws whether the next frame is lost (one draw per frame, terminal or not, so the drops of

@@ -22,13 +22,9 @@ impl Accuracy {
         self.found as f64 / self.frames as f64
     }
 
-    /// The q-th percentile (q in [0, 100]) of sorted values: nearest rank.
-    pub fn percentile(sorted: &[f64], q: f64) -> f64 {
-        if sorted.is_empty() {
-            return f64::NAN;
-        }
-        let rank = ((q / 100.0) * sorted.len() as f64).ceil() as usize;
-        sorted[rank.clamp(1, sorted.len()) - 1]
+    /// The q-th percentile (q in [0, 100]) of `values`: nearest rank.
+    pub fn percentile(values: &[f64], q: f64) -> f64 {
+        stats::percentile(values.iter().copied(), q / 100.0)
     }
 
     pub fn row(&self, name: &str) -> String {
