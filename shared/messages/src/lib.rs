@@ -27,8 +27,8 @@ pub mod ports;
 pub mod topics;
 
 pub use payload::{
-    CableObservationData, CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats, Stamp,
-    Stamped, StepStatus, ThrusterSetpoints, VehicleStateMsg,
+    CableObservationData, CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats,
+    Mission, MissionCommand, Stamp, Stamped, StepStatus, ThrusterSetpoints, VehicleStateMsg,
 };
-pub use ports::{FrameInbox, FrameOutbox, Inbox, Outbox, PortError};
+pub use ports::{FrameInbox, FrameOutbox, Heartbeat, Inbox, Outbox, PortError};
 pub use topics::{Endpoint, Qos, Topic};

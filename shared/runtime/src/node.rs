@@ -4,7 +4,7 @@ use iceoryx2::config::Config as IoxConfig;
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use messages::{
-    Endpoint, FrameInbox, FrameOutbox, Inbox, Outbox, PortError, Topic, ports::Payload,
+    Endpoint, FrameInbox, FrameOutbox, Heartbeat, Inbox, Outbox, PortError, Topic, ports::Payload,
 };
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -46,6 +46,9 @@ pub struct IoxSettings {
     )]
     pub root: String,
 }
+
+/// The environment variable in which the supervisor tells a service how often it was restarted.
+pub const RESTARTS_ENV: &str = "CABLETRACK_RESTARTS";
 
 /// An event socket is `<root><prefix><up to 39 digits>.event` and must fit in 108 bytes.
 const MAX_ROOT_AND_PREFIX: usize = 63;
@@ -96,6 +99,9 @@ pub struct Runtime {
     learning: LearningParams,
     iox: IoxConfig,
     node: Node<ipc::Service>,
+    /// Beats from every wait loop ([`Runtime::serve`]): the supervisor restarts a process that falls
+    /// silent.
+    heartbeat: Heartbeat,
 }
 
 /// Sets up logging once per process: `RUST_LOG` (default `info`) filters, colours on a terminal only;
@@ -162,6 +168,12 @@ impl Runtime {
         // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait; install it now, so a signal
         // during start-up is seen and not fatal.
         let _ = node.wait(Duration::ZERO);
+        // Set by the supervisor when it restarts this service; the heartbeat carries it.
+        let restarts = std::env::var(RESTARTS_ENV)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0);
+        let heartbeat = Heartbeat::open(&node, args.endpoint, name, restarts)?;
         Ok(Runtime {
             name,
             endpoint: args.endpoint,
@@ -171,6 +183,7 @@ impl Runtime {
             learning,
             iox,
             node,
+            heartbeat,
         })
     }
 
@@ -238,7 +251,7 @@ impl Runtime {
         timer: Timer,
         on_wake: impl FnMut(Wake) -> anyhow::Result<crate::Flow>,
     ) -> anyhow::Result<Stopped> {
-        crate::wait::serve(inputs, timer, on_wake)
+        crate::wait::serve(inputs, timer, &self.heartbeat, on_wake)
     }
 }
 

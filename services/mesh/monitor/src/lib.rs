@@ -1,6 +1,8 @@
 //! The monitor's core: pairs the sway and yaw behaviours' episode reports into one record per
 //! episode (they arrive separately, in any order) and keeps the run's totals.
 
+pub mod status;
+
 use messages::LearningStats;
 use serde::Serialize;
 use std::collections::BTreeMap;

@@ -17,6 +17,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use supervisor::{MeshFile, ServiceCommand};
 
+mod watch;
+
 #[derive(Parser)]
 #[command(
     version,
@@ -89,6 +91,8 @@ struct Service {
 /// Wakes the supervisor's poll on SIGCHLD, SIGINT and SIGTERM.
 struct Signals {
     wake: UnixStream,
+    /// The other end, for the health watch's wake-ups.
+    write: UnixStream,
     stop: Arc<AtomicBool>,
 }
 
@@ -101,8 +105,9 @@ impl Signals {
             signal_hook::flag::register(sig, Arc::clone(&stop))?;
             signal_hook::low_level::pipe::register(sig, write.try_clone()?)?;
         }
-        signal_hook::low_level::pipe::register(signal_hook::consts::SIGCHLD, write)?;
-        Ok(Signals { wake, stop })
+        signal_hook::low_level::pipe::register(signal_hook::consts::SIGCHLD, write.try_clone()?)?;
+        write.set_nonblocking(true)?;
+        Ok(Signals { wake, write, stop })
     }
 
     /// Blocks until a signal arrives or `timeout` passes (`None`: no timeout).
@@ -169,6 +174,13 @@ fn run(args: Args) -> Result<ExitCode> {
             restarts: Vec::new(),
         });
     }
+    let endpoint: messages::Endpoint = mesh.mesh.endpoint.parse().map_err(anyhow::Error::msg)?;
+    let watch = watch::Watch::start(
+        &iox,
+        endpoint,
+        services.iter().map(|s| s.cmd.name.clone()).collect(),
+        signals.write.try_clone()?,
+    )?;
     tracing::info!(mesh = %args.mesh.display(), services = services.len(), "starting the mesh");
     let stop_when = mesh.mesh.stop_when.clone();
     let restart = mesh.restart.clone();
@@ -184,6 +196,7 @@ fn run(args: Args) -> Result<ExitCode> {
                     .name(&s.cmd.name)
                     .args(&s.cmd.args)
                     .envs(env.iter().map(|(k, v)| (k, v)))
+                    .env(runtime::RESTARTS_ENV, s.restarts.len().to_string())
                     // If the supervisor itself is killed, its services get SIGTERM instead of
                     // running on as orphans.
                     .die_with_parent()
@@ -197,13 +210,24 @@ fn run(args: Args) -> Result<ExitCode> {
             tracing::info!("termination requested: stopping the mesh");
             break Ok(());
         }
+        if watch.stop_commanded() {
+            tracing::info!("the shore commands a stop: stopping the mesh");
+            break Ok(());
+        }
         // Reap and decide.
         let mut failure = None;
-        for s in &mut services {
+        for (i, s) in services.iter_mut().enumerate() {
             let State::Running { child, since } = &mut s.state else {
                 continue;
             };
-            let Some(status) = child.try_status() else {
+            let Some(status) = child.try_status().or_else(|| {
+                stuck(&watch.pulse(i), *since, &iox, child.started_pid(), s.cmd.restart).map(
+                    |silent| {
+                        tracing::warn!(service = %s.cmd.name, silent_ms = silent.as_millis() as u64, "alive but its heartbeat is silent: killing it");
+                        child.kill()
+                    },
+                )
+            }) else {
                 continue;
             };
             let ran = since.elapsed().as_secs_f64();
@@ -277,6 +301,21 @@ fn run(args: Args) -> Result<ExitCode> {
             Ok(ExitCode::FAILURE)
         }
     }
+}
+
+/// How long a service that is to be restarted has been silent, if it is stuck: it has beaten since it
+/// started, then missed its heartbeat's deadline, and its node is alive (a dead node's exit is
+/// reaped as such).
+fn stuck(
+    pulse: &watch::Pulse,
+    since: Instant,
+    iox: &iceoryx2::config::Config,
+    pid: u32,
+    restart: bool,
+) -> Option<Duration> {
+    let last = pulse.last.filter(|&l| l > since)?;
+    pulse.missed?;
+    (restart && watch::node_alive(iox, pid) != Some(false)).then(|| last.elapsed())
 }
 
 /// SIGTERM to every running service, up to `grace` for them to exit, SIGKILL for the rest.
