@@ -12,9 +12,11 @@
 //!      └──────────────────ThrusterSetpoints◀──────── thruster-allocator ◀─────────────────────────┘
 //! ```
 //!
-//! Every payload starts with a [`Stamp`]: the step's sequence number (global, increasing across
-//! episodes), its episode and step, the time, and the episode status. A consumer matches inputs by
-//! `seq` and never mixes steps.
+//! Every payload of the control loop starts with a [`Stamp`]: the step's sequence number (global,
+//! increasing across episodes), its episode and step, the time, and the episode status. A consumer
+//! matches inputs by `seq` and never mixes steps. Beside the loop, the supervisor reports what
+//! happens to the services ([`SupervisorEvent`]) and the flight recorder its progress
+//! ([`RecorderStatus`]); these belong to no step and carry the wall clock instead.
 //!
 //! Below the endpoints lies the hardware level ([`topics::hardware`]): the vehicle twin's camera and
 //! thrusters, `cabletrack/twin/<topic>`, reached only through the vehicle endpoint's adapters.
@@ -27,8 +29,9 @@ pub mod ports;
 pub mod topics;
 
 pub use payload::{
-    CableObservationData, CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats, Stamp,
-    Stamped, StepStatus, ThrusterSetpoints, VehicleStateMsg,
+    CableObservationData, CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats,
+    RecorderStatus, ServiceEvent, Stamp, Stamped, StepStatus, SupervisorEvent, ThrusterSetpoints,
+    VehicleStateMsg,
 };
-pub use ports::{FrameInbox, FrameOutbox, Inbox, Outbox, PortError};
+pub use ports::{FrameInbox, FrameOutbox, FrameTap, Inbox, Outbox, PortError, Tap};
 pub use topics::{Endpoint, Qos, Topic};

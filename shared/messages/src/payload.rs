@@ -231,6 +231,128 @@ pub struct LearningStats {
     pub _reserved: [u8; 2],
 }
 
+/// What happened to a service of the mesh ([`SupervisorEvent::kind`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum ServiceEvent {
+    /// The supervisor started it (at the mesh's start, or again after it died).
+    Started = 1,
+    /// It exited on its own: with success (its job done) or not (it died).
+    Exited = 2,
+    /// It died and will be started again after [`SupervisorEvent::delay_ms`].
+    Restarting = 3,
+    /// The supervisor stopped it with the mesh (SIGTERM, then SIGKILL after the grace period).
+    Stopped = 4,
+}
+
+impl ServiceEvent {
+    pub fn from_u8(v: u8) -> Option<ServiceEvent> {
+        match v {
+            1 => Some(ServiceEvent::Started),
+            2 => Some(ServiceEvent::Exited),
+            3 => Some(ServiceEvent::Restarting),
+            4 => Some(ServiceEvent::Stopped),
+            _ => None,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ServiceEvent::Started => "started",
+            ServiceEvent::Exited => "exited",
+            ServiceEvent::Restarting => "restarting",
+            ServiceEvent::Stopped => "stopped",
+        }
+    }
+}
+
+/// The longest service name an event carries (longer names are cut at a character boundary).
+pub const SERVICE_NAME_LEN: usize = 32;
+
+/// One of the supervisor's events. It belongs to no control step, so it carries no [`Stamp`]: its
+/// time is the wall clock.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::SupervisorEvent/1")]
+pub struct SupervisorEvent {
+    /// Events count from 1 in one supervisor's run.
+    pub seq: u64,
+    /// When it happened: nanoseconds since the Unix epoch.
+    pub wall_time_ns: u64,
+    /// A [`ServiceEvent`] as u8.
+    pub kind: u8,
+    pub _reserved: [u8; 3],
+    /// The service's process (for `Restarting`: the one that died).
+    pub pid: u32,
+    /// `Exited`, `Stopped`: the exit code, or minus the signal that ended it; 0 otherwise.
+    pub status: i32,
+    /// Times the service has been restarted so far.
+    pub restarts: u32,
+    /// `Restarting`: the delay before the restart (ms). `Stopped`: 1 if it had to be killed.
+    pub detail: u32,
+    pub _pad: u32,
+    /// The service's name in the mesh file, UTF-8, NUL-padded.
+    pub service: [u8; SERVICE_NAME_LEN],
+}
+
+impl SupervisorEvent {
+    pub fn new(seq: u64, wall_time_ns: u64, kind: ServiceEvent, service: &str) -> Self {
+        let mut name = [0u8; SERVICE_NAME_LEN];
+        let mut end = service.len().min(SERVICE_NAME_LEN);
+        while !service.is_char_boundary(end) {
+            end -= 1;
+        }
+        name[..end].copy_from_slice(&service.as_bytes()[..end]);
+        SupervisorEvent {
+            seq,
+            wall_time_ns,
+            kind: kind as u8,
+            service: name,
+            ..Default::default()
+        }
+    }
+
+    /// The event's kind; `None` for an unknown value (a newer supervisor).
+    pub fn kind(&self) -> Option<ServiceEvent> {
+        ServiceEvent::from_u8(self.kind)
+    }
+
+    /// The service's name (invalid UTF-8 is replaced).
+    pub fn service(&self) -> String {
+        let end = self
+            .service
+            .iter()
+            .position(|&b| b == 0)
+            .unwrap_or(SERVICE_NAME_LEN);
+        String::from_utf8_lossy(&self.service[..end]).into_owned()
+    }
+}
+
+/// The flight recorder's report after each flush of its file.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::RecorderStatus/1")]
+pub struct RecorderStatus {
+    /// Reports count from 1.
+    pub seq: u64,
+    /// Nanoseconds since the Unix epoch.
+    pub wall_time_ns: u64,
+    /// Messages written so far, over every part of the record.
+    pub messages: u64,
+    /// Messages on disk in complete chunks: what a SIGKILL now would leave readable.
+    pub flushed_messages: u64,
+    /// Bytes written so far, over every part.
+    pub bytes: u64,
+    /// Steps a topic missed while other topics of the loop had them (the recorder's buffer
+    /// overflowed, or the step was never published on that topic).
+    pub holes: u64,
+    /// Messages of a step seen again (re-sends), not written again.
+    pub repeats: u64,
+    /// The part being written (0: the file named on the command line).
+    pub part: u32,
+    pub _reserved: u32,
+}
+
 /// A message that belongs to one control step.
 pub trait Stamped {
     fn stamp(&self) -> &Stamp;
@@ -254,3 +376,31 @@ stamped!(
     ThrusterSetpoints,
     LearningStats
 );
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_event_carries_the_service_name_cut_at_a_character_boundary() {
+        let e = SupervisorEvent::new(3, 7, ServiceEvent::Restarting, "sway-behaviour");
+        assert_eq!(e.service(), "sway-behaviour");
+        assert_eq!(e.kind(), Some(ServiceEvent::Restarting));
+        assert_eq!(
+            std::mem::size_of::<SupervisorEvent>(),
+            72,
+            "no hidden padding"
+        );
+        // 31 ASCII bytes and a two-byte character: the character does not fit and is left out.
+        let long = format!("{}é", "a".repeat(31));
+        assert_eq!(
+            SupervisorEvent::new(1, 0, ServiceEvent::Started, &long).service(),
+            "a".repeat(31)
+        );
+        let unknown = SupervisorEvent {
+            kind: 9,
+            ..Default::default()
+        };
+        assert_eq!(unknown.kind(), None);
+    }
+}

@@ -55,6 +55,18 @@ fn open_event(
         .map_err(|e| fail(service, "cannot open the event service")(&e))
 }
 
+/// A listener of the topic `service`'s event: notified after each message published on it.
+pub fn open_listener(
+    node: &Node<Ipc>,
+    service: &str,
+    qos: &crate::Qos,
+) -> Result<Listener<Ipc>, PortError> {
+    open_event(node, service, qos)?
+        .listener_builder()
+        .create()
+        .map_err(|e| fail(service, "cannot create a listener")(&e))
+}
+
 /// Publishes one topic's messages and wakes its subscribers.
 pub struct Outbox<P: Payload> {
     service: String,
@@ -74,7 +86,7 @@ pub fn open_topic<P: Payload>(
     node.service_builder(&service_name(service)?)
         .publish_subscribe::<P>()
         .history_size(q.history)
-        .subscriber_max_buffer_size(q.buffer)
+        .subscriber_max_buffer_size(q.buffer.max(q.recorder_buffer))
         .enable_safe_overflow(true)
         .max_publishers(q.max_publishers)
         .max_subscribers(q.max_subscribers)
@@ -158,12 +170,10 @@ impl<P: Payload> Inbox<P> {
         let factory = open_topic::<P>(node, service, q)?;
         let subscriber = factory
             .subscriber_builder()
+            .buffer_size(q.buffer)
             .create()
             .map_err(|e| fail(service, "cannot create a subscriber")(&e))?;
-        let listener = open_event(node, service, q)?
-            .listener_builder()
-            .create()
-            .map_err(|e| fail(service, "cannot create a listener")(&e))?;
+        let listener = open_listener(node, service, q)?;
         Ok(Inbox {
             service: service.to_owned(),
             factory,
@@ -215,7 +225,7 @@ fn open_frames_service(
         .publish_subscribe::<[u8]>()
         .user_header::<CameraFrameHeader>()
         .history_size(q.history)
-        .subscriber_max_buffer_size(q.buffer)
+        .subscriber_max_buffer_size(q.buffer.max(q.recorder_buffer))
         .enable_safe_overflow(true)
         .max_publishers(q.max_publishers)
         .max_subscribers(q.max_subscribers)
@@ -334,12 +344,10 @@ impl FrameInbox {
         let factory = open_frames_service(node, service, topic)?;
         let subscriber = factory
             .subscriber_builder()
+            .buffer_size(topic.qos.buffer)
             .create()
             .map_err(|e| fail(service, "cannot create a subscriber")(&e))?;
-        let listener = open_event(node, service, &topic.qos)?
-            .listener_builder()
-            .create()
-            .map_err(|e| fail(service, "cannot create a listener")(&e))?;
+        let listener = open_listener(node, service, &topic.qos)?;
         Ok(FrameInbox {
             service: service.to_owned(),
             factory,
@@ -367,6 +375,81 @@ impl FrameInbox {
     /// Publishers connected now.
     pub fn publishers(&self) -> usize {
         self.factory.dynamic_config().number_of_publishers()
+    }
+
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+}
+
+/// A recording subscriber of one topic: the topic's [`crate::Qos::recorder_buffer`], and no
+/// listener, so a publish wakes nobody more than without it (the recorder wakes once per step on a
+/// listener of its own choosing, see [`open_listener`], and drains its taps then). When it falls
+/// behind by more than its buffer, the publisher overwrites its oldest samples: it never blocks.
+pub struct Tap<P: Payload> {
+    service: String,
+    subscriber: Subscriber<Ipc, P, ()>,
+}
+
+impl<P: Payload> Tap<P> {
+    pub fn open(node: &Node<Ipc>, endpoint: Endpoint, topic: &Topic<P>) -> Result<Self, PortError> {
+        let service = topic.service_name(endpoint);
+        let subscriber = open_topic::<P>(node, &service, &topic.qos)?
+            .subscriber_builder()
+            .buffer_size(topic.qos.recorder_buffer)
+            .create()
+            .map_err(|e| fail(&service, "cannot create a subscriber")(&e))?;
+        Ok(Tap {
+            service,
+            subscriber,
+        })
+    }
+
+    /// The next unread message, if any.
+    pub fn receive(&self) -> Result<Option<P>, PortError> {
+        match self.subscriber.receive() {
+            Ok(Some(sample)) => Ok(Some(*sample.payload())),
+            Ok(None) => Ok(None),
+            Err(e) => Err(fail(&self.service, "cannot receive")(&e)),
+        }
+    }
+
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+}
+
+/// A recording subscriber of the camera's frames (see [`Tap`]).
+pub struct FrameTap {
+    service: String,
+    subscriber: Subscriber<Ipc, [u8], CameraFrameHeader>,
+}
+
+impl FrameTap {
+    pub fn open(node: &Node<Ipc>, endpoint: Endpoint) -> Result<Self, PortError> {
+        let topic = crate::topics::CAMERA_FRAME;
+        let service = topic.service_name(endpoint);
+        let subscriber = open_frames_service(node, &service, &topic)?
+            .subscriber_builder()
+            .buffer_size(topic.qos.recorder_buffer)
+            .create()
+            .map_err(|e| fail(&service, "cannot create a subscriber")(&e))?;
+        Ok(FrameTap {
+            service,
+            subscriber,
+        })
+    }
+
+    /// Calls `f` with the next unread frame (header and image, in shared memory), if any.
+    pub fn receive_with<R>(
+        &self,
+        f: impl FnOnce(&CameraFrameHeader, &[u8]) -> R,
+    ) -> Result<Option<R>, PortError> {
+        match self.subscriber.receive() {
+            Ok(Some(sample)) => Ok(Some(f(sample.user_header(), sample.payload()))),
+            Ok(None) => Ok(None),
+            Err(e) => Err(fail(&self.service, "cannot receive")(&e)),
+        }
     }
 
     pub fn service(&self) -> &str {

@@ -49,6 +49,10 @@ pub struct Qos {
     /// Samples a subscriber can hold unread; the oldest is overwritten when full (publishers never
     /// block: a slow process must not stall the vehicle).
     pub buffer: usize,
+    /// Samples a recording subscriber (`ports::Tap`: the flight recorder) can hold unread. It is
+    /// woken once per step, not per message, so it needs more slack than a consumer of the loop;
+    /// when it falls behind further, its oldest samples are overwritten and it counts the holes.
+    pub recorder_buffer: usize,
     pub max_publishers: usize,
     pub max_subscribers: usize,
     pub max_nodes: usize,
@@ -58,6 +62,8 @@ pub struct Qos {
 const STEP: Qos = Qos {
     history: 1,
     buffer: 4,
+    // About 40 ms of the accelerated simulation (1,500 steps/s); 13 s at the vehicle's 5 Hz.
+    recorder_buffer: 64,
     // The producing service, plus its restarted successor while the dead one is being cleaned up.
     max_publishers: 2,
     // The consumers, a recorder or monitor, and a test's probe.
@@ -107,6 +113,7 @@ pub const CAMERA_FRAME: Topic<[u8]> = Topic::new(
         // Each subscriber's buffer and history cost a frame of shared memory: keep them small.
         max_subscribers: 4,
         buffer: 2,
+        recorder_buffer: 8,
         ..STEP
     },
 );
@@ -141,6 +148,7 @@ pub const THRUSTER_SETPOINTS: Topic<ThrusterSetpoints> = Topic::new(
 const STATS: Qos = Qos {
     history: 1,
     buffer: 256,
+    recorder_buffer: 256,
     max_publishers: 2,
     max_subscribers: 4,
     max_nodes: 16,
@@ -155,6 +163,52 @@ pub fn learning(dof: config::Dof) -> Topic<LearningStats> {
         config::Dof::Yaw => YAW_LEARNING,
     }
 }
+
+/// The supervisor's events: a service started, exited, is restarted, or was stopped with the mesh.
+/// A few a minute at most; the history lets a restarted recorder see the latest ones.
+pub const SUPERVISOR_EVENTS: Topic<SupervisorEvent> = Topic::new(
+    "supervisor/events",
+    Qos {
+        history: 16,
+        buffer: 64,
+        recorder_buffer: 64,
+        // The supervisor, and a successor while a killed one's port is being cleaned up.
+        max_publishers: 2,
+        max_subscribers: 4,
+        max_nodes: 16,
+    },
+);
+
+/// The flight recorder's progress, after each flush of its file: what is on disk, what it missed.
+pub const RECORDER_STATUS: Topic<RecorderStatus> = Topic::new(
+    "recorder/status",
+    Qos {
+        history: 1,
+        buffer: 16,
+        recorder_buffer: 16,
+        max_publishers: 2,
+        max_subscribers: 4,
+        max_nodes: 16,
+    },
+);
+
+// A recorder's subscriber holds at least what a consumer of the loop holds (checked when building).
+const _: () = {
+    let qos = [
+        VEHICLE_STATE.qos,
+        CAMERA_FRAME.qos,
+        CABLE_OBSERVATION.qos,
+        THRUSTER_SETPOINTS.qos,
+        STATS,
+        SUPERVISOR_EVENTS.qos,
+        RECORDER_STATUS.qos,
+    ];
+    let mut i = 0;
+    while i < qos.len() {
+        assert!(qos[i].recorder_buffer >= qos[i].buffer);
+        i += 1;
+    }
+};
 
 /// The hardware level: topics between a device (or the vehicle twin standing in for the vehicle) and
 /// its adapters on the vehicle endpoint (`shared/adapters`). They live outside the `sim` and
@@ -175,6 +229,7 @@ pub mod hardware {
             history: 1,
             // A frame source reads each frame at once; a few frames of slack cost little memory.
             buffer: 4,
+            recorder_buffer: 4,
             // One camera (the twin); a subscriber per frame source, a recorder, a test's probe.
             max_publishers: 1,
             max_subscribers: 4,
@@ -189,6 +244,7 @@ pub mod hardware {
         Qos {
             history: 1,
             buffer: 4,
+            recorder_buffer: 4,
             max_publishers: 1,
             max_subscribers: 4,
             max_nodes: 16,

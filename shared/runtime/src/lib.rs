@@ -29,8 +29,8 @@ mod wait;
 
 pub use namespace::Namespace;
 pub use node::{
-    CommonArgs, IoxSettings, Runtime, RuntimeError, init_tracing, remove_dead_nodes, run,
-    shm_files, shm_leftovers,
+    CommonArgs, IoxSettings, Runtime, RuntimeError, create_node, init_tracing, remove_dead_nodes,
+    run, shm_files, shm_leftovers,
 };
 pub use steps::{Answer, StepInput};
 pub use wait::{Flow, Stopped, Timer, Wake};

@@ -4,7 +4,8 @@ use iceoryx2::config::Config as IoxConfig;
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use messages::{
-    Endpoint, FrameInbox, FrameOutbox, Inbox, Outbox, PortError, Topic, ports::Payload,
+    Endpoint, FrameInbox, FrameOutbox, FrameTap, Inbox, Outbox, PortError, Tap, Topic,
+    ports::Payload,
 };
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -150,14 +151,7 @@ impl Runtime {
         let learning: LearningParams = config::load(&args.config.join("learning.toml"))?;
         let iox = args.iox.config()?;
         remove_dead_nodes(&iox);
-        let node = NodeBuilder::new()
-            .name(
-                &NodeName::new(name)
-                    .map_err(|e| RuntimeError::Iox(format!("node name `{name}`: {e:?}")))?,
-            )
-            .config(&iox)
-            .create::<ipc::Service>()
-            .map_err(|e| RuntimeError::Iox(format!("cannot create node `{name}`: {e:?}")))?;
+        let node = create_node(name, &iox)?;
         // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait; install it now, so a signal
         // during start-up is seen and not fatal.
         let _ = node.wait(Duration::ZERO);
@@ -228,6 +222,30 @@ impl Runtime {
         FrameInbox::open(&self.node, self.endpoint)
     }
 
+    /// A recording subscriber of `topic` (see [`messages::Tap`]).
+    pub fn tap<P: Payload>(&self, topic: &Topic<P>) -> Result<Tap<P>, PortError> {
+        Tap::open(&self.node, self.endpoint, topic)
+    }
+
+    /// A recording subscriber of the camera's frames.
+    pub fn frame_tap(&self) -> Result<FrameTap, PortError> {
+        FrameTap::open(&self.node, self.endpoint)
+    }
+
+    /// A listener notified after each message on `topic`, without a subscriber.
+    pub fn listener<P: ?Sized>(
+        &self,
+        topic: &Topic<P>,
+    ) -> Result<iceoryx2::port::listener::Listener<ipc::Service>, PortError> {
+        messages::ports::open_listener(&self.node, &topic.service_name(self.endpoint), &topic.qos)
+    }
+
+    /// Tells the supervisor that this service is ready (its ports are open), where it waits for that
+    /// ([`crate::process::notify_ready`]).
+    pub fn ready(&self) {
+        crate::process::notify_ready();
+    }
+
     /// Blocks until one of `inputs` is notified or the timer fires, calls `on_wake`, and repeats
     /// until `on_wake` says stop or a termination signal arrives. Never spins: between wake-ups the
     /// process sleeps in the kernel.
@@ -239,6 +257,19 @@ impl Runtime {
     ) -> anyhow::Result<Stopped> {
         crate::wait::serve(inputs, timer, on_wake)
     }
+}
+
+/// A node named `name` in the iceoryx2 namespace `iox` (for a program that is not a service, e.g. the
+/// supervisor; a service gets its node from [`Runtime::start`]).
+pub fn create_node(name: &str, iox: &IoxConfig) -> Result<Node<ipc::Service>, RuntimeError> {
+    NodeBuilder::new()
+        .name(
+            &NodeName::new(name)
+                .map_err(|e| RuntimeError::Iox(format!("node name `{name}`: {e:?}")))?,
+        )
+        .config(iox)
+        .create::<ipc::Service>()
+        .map_err(|e| RuntimeError::Iox(format!("cannot create node `{name}`: {e:?}")))
 }
 
 /// Removes what processes that died without cleaning up (e.g. `kill -9`) left in shared memory;
