@@ -37,7 +37,9 @@ use serde::de::DeserializeOwned;
 use std::path::Path;
 
 /// The two degrees of freedom that are learned.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Dof {
     Sway,

@@ -116,45 +116,86 @@ fn decode(channel: Channel, data: &[u8]) -> Result<Recorded, String> {
     })
 }
 
-/// Reads the record at `path` (all its parts), calling `f` with each message in file order. A part
+/// A record's messages, pulled one by one: every part in order, every message in file order. A part
 /// cut while written is read up to its last complete chunk and listed in [`ReadSummary::cut`].
-pub fn read(path: &Path, mut f: impl FnMut(Message)) -> Result<ReadSummary, ReadError> {
-    let parts = writer::parts(path);
-    if parts.is_empty() {
-        return Err(ReadError::NotFound {
-            path: path.to_owned(),
-        });
+pub struct Reader {
+    parts: std::vec::IntoIter<PathBuf>,
+    current: Option<(
+        PathBuf,
+        u64,
+        mcap::io::MessageReader<BufReader<std::fs::File>>,
+    )>,
+    summary: ReadSummary,
+}
+
+impl Reader {
+    pub fn open(path: &Path) -> Result<Reader, ReadError> {
+        let parts = writer::parts(path);
+        if parts.is_empty() {
+            return Err(ReadError::NotFound {
+                path: path.to_owned(),
+            });
+        }
+        Ok(Reader {
+            summary: ReadSummary {
+                parts: parts.clone(),
+                ..Default::default()
+            },
+            parts: parts.into_iter(),
+            current: None,
+        })
     }
-    let mut summary = ReadSummary {
-        parts: parts.clone(),
-        ..Default::default()
-    };
-    for part in &parts {
-        let file = std::fs::File::open(part).map_err(|source| ReadError::Open {
-            path: part.clone(),
-            source,
-        })?;
-        let reader = mcap::io::MessageReader::new(BufReader::with_capacity(1 << 20, file));
-        for (from_part, m) in (0u64..).zip(reader) {
-            let m = match m {
-                Ok(m) => m,
-                Err(e @ (mcap::McapError::UnexpectedEof | mcap::McapError::UnexpectedEoc)) => {
-                    summary.cut.push(Cut {
+
+    /// What was read so far (all of it once the reader is exhausted).
+    pub fn summary(&self) -> &ReadSummary {
+        &self.summary
+    }
+
+    fn next_message(&mut self) -> Result<Option<Message>, ReadError> {
+        loop {
+            let Some((part, read, reader)) = self.current.as_mut() else {
+                let Some(part) = self.parts.next() else {
+                    return Ok(None);
+                };
+                let file = std::fs::File::open(&part).map_err(|source| ReadError::Open {
+                    path: part.clone(),
+                    source,
+                })?;
+                let reader = mcap::io::MessageReader::new(BufReader::with_capacity(1 << 20, file));
+                self.current = Some((part, 0, reader));
+                continue;
+            };
+            let m = match reader.next() {
+                None => {
+                    self.current = None;
+                    continue;
+                }
+                Some(Ok(m)) => m,
+                Some(Err(
+                    e @ (mcap::McapError::UnexpectedEof | mcap::McapError::UnexpectedEoc),
+                )) => {
+                    self.summary.cut.push(Cut {
                         path: part.clone(),
-                        messages: from_part,
+                        messages: *read,
                         reason: e.to_string(),
                     });
-                    break;
+                    self.current = None;
+                    continue;
                 }
-                Err(source) => {
+                Some(Err(source)) => {
                     return Err(ReadError::Mcap {
                         path: part.clone(),
                         source,
                     });
                 }
             };
+            *read += 1;
             let Some(channel) = Channel::from_topic(&m.channel.topic) else {
-                *summary.unknown.entry(m.channel.topic.clone()).or_default() += 1;
+                *self
+                    .summary
+                    .unknown
+                    .entry(m.channel.topic.clone())
+                    .or_default() += 1;
                 continue;
             };
             let item = decode(channel, &m.data).map_err(|reason| ReadError::Decode {
@@ -162,14 +203,61 @@ pub fn read(path: &Path, mut f: impl FnMut(Message)) -> Result<ReadSummary, Read
                 topic: m.channel.topic.clone(),
                 reason,
             })?;
-            summary.messages += 1;
-            *summary.per_channel.entry(channel).or_default() += 1;
-            f(Message {
+            self.summary.messages += 1;
+            *self.summary.per_channel.entry(channel).or_default() += 1;
+            return Ok(Some(Message {
                 channel,
                 log_time: m.log_time,
                 item,
-            });
+            }));
         }
     }
-    Ok(summary)
+}
+
+impl Iterator for Reader {
+    type Item = Result<Message, ReadError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.next_message().transpose()
+    }
+}
+
+/// Reads the record at `path` (all its parts), calling `f` with each message in file order.
+pub fn read(path: &Path, mut f: impl FnMut(Message)) -> Result<ReadSummary, ReadError> {
+    let mut reader = Reader::open(path)?;
+    for m in reader.by_ref() {
+        f(m?);
+    }
+    Ok(reader.summary)
+}
+
+/// The record's `cabletrack` metadata (endpoint, seed, what log time is, ...), from its first part:
+/// the recorder writes it before the first message.
+pub fn metadata(path: &Path) -> Result<BTreeMap<String, String>, ReadError> {
+    use std::io::Read;
+    let open = |source| ReadError::Open {
+        path: path.to_owned(),
+        source,
+    };
+    let mut head = Vec::new();
+    std::fs::File::open(path)
+        .map_err(open)?
+        .take(1 << 20)
+        .read_to_end(&mut head)
+        .map_err(open)?;
+    let records = mcap::read::LinearReader::new(&head).map_err(|source| ReadError::Mcap {
+        path: path.to_owned(),
+        source,
+    })?;
+    for record in records {
+        match record {
+            Ok(mcap::records::Record::Metadata(m)) if m.name == "cabletrack" => {
+                return Ok(m.metadata);
+            }
+            // The first chunk or the end of what was read: the recorder writes it before both.
+            Ok(mcap::records::Record::Chunk { .. }) | Err(_) => break,
+            Ok(_) => {}
+        }
+    }
+    Ok(BTreeMap::new())
 }
