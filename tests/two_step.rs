@@ -100,6 +100,23 @@ fn two_step_learning_transfers_the_simulation_policy_and_improves_it_on_the_vehi
         }
     }
 
+    // Step two's flight record: whole (no part cut), every frame with its image, its estimate and
+    // its answer, and every trial's episode report of both learners.
+    let mut per_topic = std::collections::BTreeMap::new();
+    let flight = recorder::read(&out.join("step-two.mcap"), |m| {
+        *per_topic.entry(m.channel).or_insert(0u64) += 1;
+    })
+    .unwrap();
+    assert!(flight.cut.is_empty(), "{:?}", flight.cut);
+    use recorder::Channel as C;
+    let frames = per_topic[&C::FrameHeader];
+    for c in [C::Image, C::Observation, C::Annotation, C::Setpoints] {
+        assert_eq!(per_topic[&c], frames, "{c:?}: {per_topic:?}");
+    }
+    for c in [C::SwayLearning, C::YawLearning] {
+        assert_eq!(per_topic[&c], TRIALS as u64, "{c:?}: {per_topic:?}");
+    }
+
     // The transfer: the cable stays in view on the twin, but each DOF costs more per step there than
     // in simulation from the same starts (by 10% at least).
     let in_sim = read(&out.join("eval-sim/run.json"));

@@ -24,6 +24,7 @@ pub struct Spawn {
     name: String,
     cmd: Command,
     log: Option<PathBuf>,
+    stdout: Option<Stdio>,
     die_with_parent: bool,
     ready_pipe: bool,
 }
@@ -41,6 +42,7 @@ impl Spawn {
             name,
             cmd: Command::new(program),
             log: None,
+            stdout: None,
             die_with_parent: false,
             ready_pipe: false,
         }
@@ -78,6 +80,12 @@ impl Spawn {
     /// Stdout and stderr both go to this file (created, or truncated).
     pub fn log(mut self, path: impl Into<PathBuf>) -> Self {
         self.log = Some(path.into());
+        self
+    }
+
+    /// Stdout goes to `out` instead (e.g. a pipe); with [`Spawn::log`] the log keeps stderr.
+    pub fn stdout(mut self, out: impl Into<Stdio>) -> Self {
+        self.stdout = Some(out.into());
         self
     }
 
@@ -126,6 +134,9 @@ impl Spawn {
         if let Some(log) = &self.log {
             let file = std::fs::File::create(log)?;
             self.cmd.stdout(file.try_clone()?).stderr(file);
+        }
+        if let Some(out) = self.stdout.take() {
+            self.cmd.stdout(out);
         }
         if self.die_with_parent {
             // SAFETY: prctl in the child before exec is async-signal-safe.

@@ -82,8 +82,35 @@ struct VehicleArgs {
     markdown: Option<PathBuf>,
 }
 
+#[derive(Args)]
+struct RecordArgs {
+    /// Episodes per run (the first one is the warm-up).
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(2..))]
+    episodes: u32,
+    /// Pairs of runs (recorder off, recorder on); medians are reported.
+    #[arg(long, default_value_t = 7, value_parser = clap::value_parser!(u64).range(1..))]
+    repeats: u64,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// The recorder keeps the images of every K-th step (the sim mesh's default: 10).
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..))]
+    frame_every: u32,
+    /// Directory holding scenario.toml and learning.toml.
+    #[arg(long, default_value = "config")]
+    config: PathBuf,
+    /// The mesh file the supervisor runs.
+    #[arg(long, default_value = "config/sim-mesh.toml")]
+    mesh: PathBuf,
+    /// Write every run's figures here as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
 #[derive(Subcommand)]
 enum Hidden {
+    /// The flight recorder's cost: the mesh's steps/s with the recorder off and on (pairs of runs,
+    /// swapping places every repeat), the recorder's CPU per step and the record's bytes per step.
+    Record(RecordArgs),
     /// The vehicle endpoint: camera-to-thruster latency at 5 Hz over many steps, CPU and memory of
     /// every service (step one runs first, in simulation, for the policy the vehicle starts from).
     Vehicle(VehicleArgs),
@@ -104,15 +131,19 @@ enum Hidden {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    if let Some(Hidden::Vehicle(args)) = &cli.command {
+    let command_line = Cli::parse();
+    if let Some(Hidden::Record(args)) = &command_line.command {
+        runtime::init_tracing();
+        return match record(args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(err) => cli::fail("mesh-bench", err.as_ref()),
+        };
+    }
+    if let Some(Hidden::Vehicle(args)) = &command_line.command {
         runtime::init_tracing();
         return match vehicle(args) {
             Ok(()) => ExitCode::SUCCESS,
-            Err(err) => {
-                eprintln!("mesh-bench: error: {err:#}");
-                ExitCode::FAILURE
-            }
+            Err(err) => cli::fail("mesh-bench", err.as_ref()),
         };
     }
     if let Some(Hidden::RingNode {
@@ -120,21 +151,18 @@ fn main() -> ExitCode {
         warmup,
         steps,
         common,
-    }) = cli.command
+    }) = command_line.command
     {
         return runtime::run(role.name(), &common, |rt| {
             let report = ring::run(rt, role, warmup, steps)?;
-            println!("{}", serde_json::to_string(&report)?);
+            cli::outln!("{}", serde_json::to_string(&report)?)?;
             Ok(())
         });
     }
     runtime::init_tracing();
-    match bench(&cli.bench) {
+    match bench(&command_line.bench) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(err) => {
-            eprintln!("mesh-bench: error: {err:#}");
-            ExitCode::FAILURE
-        }
+        Err(err) => cli::fail("mesh-bench", err.as_ref()),
     }
 }
 
@@ -180,7 +208,7 @@ fn report(
     json: Option<&std::path::Path>,
     md: Option<&std::path::Path>,
 ) -> Result<()> {
-    println!("{markdown}");
+    cli::outln!("{markdown}")?;
     if let Some(path) = json {
         std::fs::write(path, serde_json::to_string_pretty(figures)?)
             .with_context(|| format!("writing {}", path.display()))?;
@@ -231,6 +259,7 @@ fn bench(args: &Bench) -> Result<()> {
             seed: args.seed + r,
             warmup,
             probe_fifo: (args.probe_fifo > 0).then_some(args.probe_fifo),
+            record_frame_every: None,
         };
         // The two mesh runs swap places every repeat, so a drift of the machine favours neither.
         let (mesh, mesh_probe) = if r % 2 == 0 {
@@ -289,4 +318,97 @@ fn bench(args: &Bench) -> Result<()> {
         args.json.as_deref(),
         args.markdown.as_deref(),
     )
+}
+
+/// The recorder's cost, pairs of runs of the same seed.
+fn record(args: &RecordArgs) -> Result<()> {
+    let canon = |p: &PathBuf, what: &str| {
+        p.canonicalize()
+            .with_context(|| format!("{what} {}", p.display()))
+    };
+    let config_dir = canon(&args.config, "the config directory")?;
+    let mesh_file = canon(&args.mesh, "the mesh file")?;
+    let scenario: config::Scenario = config::load(&config_dir.join("scenario.toml"))?;
+    let exe = std::env::current_exe()?;
+    let episode_steps = scenario.timing.max_steps as u64 + 1;
+    eprintln!(
+        "mesh-bench record: {} pairs of runs of {} episodes, the recorder keeping the images of every {} steps (load average {:.2})",
+        args.repeats,
+        args.episodes,
+        args.frame_every,
+        load()
+    );
+    let mut pairs = Vec::new();
+    for r in 0..args.repeats {
+        let setup = MeshSetup {
+            bin_dir: exe.parent().context("the bench's directory")?.to_owned(),
+            config_dir: config_dir.clone(),
+            mesh_file: mesh_file.clone(),
+            episodes: args.episodes,
+            seed: args.seed + r,
+            warmup: episode_steps,
+            probe_fifo: None,
+            record_frame_every: None,
+        };
+        let on = MeshSetup {
+            record_frame_every: Some(args.frame_every),
+            ..setup.clone()
+        };
+        // The two runs swap places every repeat, so a drift of the machine favours neither.
+        let (off, on) = if r % 2 == 0 {
+            let off = runs::mesh(&setup, false).context("the mesh, recorder off")?;
+            (
+                off,
+                runs::mesh(&on, false).context("the mesh, recorder on")?,
+            )
+        } else {
+            let on = runs::mesh(&on, false).context("the mesh, recorder on")?;
+            (
+                runs::mesh(&setup, false).context("the mesh, recorder off")?,
+                on,
+            )
+        };
+        let rec = on.processes.iter().find(|p| p.name == "recorder");
+        eprintln!(
+            "  repeat {}/{}: recorder off {} steps/s, on {} steps/s ({:.3}); recorder {:.1} µs CPU per step; record {:.1} MB",
+            r + 1,
+            args.repeats,
+            thousands(off.steps_per_s),
+            thousands(on.steps_per_s),
+            on.steps_per_s / off.steps_per_s,
+            rec.map_or(f64::NAN, |p| p.cpu_us_per_step),
+            on.record_bytes as f64 / 1e6,
+        );
+        pairs.push((off, on));
+    }
+    let median =
+        |f: &dyn Fn(&(runs::MeshRun, runs::MeshRun)) -> f64| stats::median(pairs.iter().map(f));
+    let off = median(&|p| p.0.steps_per_s);
+    let on = median(&|p| p.1.steps_per_s);
+    let ratio = median(&|p| p.1.steps_per_s / p.0.steps_per_s);
+    let cpu = median(&|p| {
+        p.1.processes
+            .iter()
+            .find(|u| u.name == "recorder")
+            .map_or(f64::NAN, |u| u.cpu_us_per_step)
+    });
+    // Bytes per step over the whole run (every step is recorded, the warm-up too).
+    let bytes_per_step = median(&|p| p.1.record_bytes as f64 / p.1.last_seq.max(1) as f64);
+    let markdown = format!(
+        "| flight recorder, {} pairs of runs x {} episodes, images of every {} steps | median |\n|---|---:|\n\
+         | mesh, recorder off | {} steps/s |\n\
+         | mesh, recorder on | {} steps/s |\n\
+         | on / off (median of the pairs' ratios) | {:.3} |\n\
+         | recorder's CPU per step | {:.1} µs |\n\
+         | record per step | {:.1} kB |\n",
+        args.repeats,
+        args.episodes,
+        args.frame_every,
+        thousands(off),
+        thousands(on),
+        ratio,
+        cpu,
+        bytes_per_step / 1e3,
+    );
+    report(&pairs, &markdown, args.json.as_deref(), None)
 }

@@ -78,7 +78,7 @@ pub struct ProcessUse {
 }
 
 /// The order processes are listed in: the loop's.
-const ORDER: [&str; 10] = [
+const ORDER: [&str; 11] = [
     "simulator",
     "vehicle-twin",
     "camera",
@@ -88,6 +88,7 @@ const ORDER: [&str; 10] = [
     "surge-controller",
     "thruster-allocator",
     "monitor",
+    "recorder",
     "supervisor",
 ];
 
@@ -227,6 +228,8 @@ pub struct MeshSetup {
     pub warmup: u64,
     /// Run the probe at this real-time (`SCHED_FIFO`) priority; `None`: the normal one.
     pub probe_fifo: Option<i32>,
+    /// Keep a flight record of the run (the recorder on, with the images of every K-th step).
+    pub record_frame_every: Option<u32>,
 }
 
 /// One run of the real mesh.
@@ -247,6 +250,10 @@ pub struct MeshRun {
     pub probe: Option<ProbeUse>,
     /// Shared-memory files left after the run (should be none).
     pub leftovers: usize,
+    /// With the recorder on: the flight record's size (every part), bytes.
+    pub record_bytes: u64,
+    /// Without the probe: the last step seen (the run's steps, the warm-up included).
+    pub last_seq: u64,
 }
 
 /// Runs the mesh once through the supervisor, with images.
@@ -255,18 +262,29 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
     let scratch = ns.scratch();
     let node = probe::node(&ns.iox, "mesh-bench")?;
     let watcher = Watcher::open(&node, with_probe)?;
+    let record_dir = scratch.join("record");
+    let mut sets = vec![
+        ("episodes", setup.episodes.to_string()),
+        ("eyes", "images".to_owned()),
+        ("json", scratch.join("run.json").display().to_string()),
+        // A fresh state directory: the behaviours start from scratch, never from an earlier run.
+        ("state", scratch.join("state").display().to_string()),
+    ];
+    if let Some(k) = setup.record_frame_every {
+        std::fs::create_dir_all(&record_dir)
+            .with_context(|| format!("creating {}", record_dir.display()))?;
+        sets.push((
+            "record",
+            record_dir.join("flight.mcap").display().to_string(),
+        ));
+        sets.push(("frame_every", k.to_string()));
+    }
     let args = supervisor::command_line(
         &setup.mesh_file,
         Some(&setup.config_dir),
         setup.seed,
         &ns.iox,
-        &[
-            ("episodes", setup.episodes.to_string()),
-            ("eyes", "images".to_owned()),
-            ("json", scratch.join("run.json").display().to_string()),
-            // A fresh state directory: the behaviours start from scratch, never from an earlier run.
-            ("state", scratch.join("state").display().to_string()),
-        ],
+        &sets,
     );
     let started = Instant::now();
     let mut sup = spawn(
@@ -294,6 +312,7 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
             })?;
             let (a, b) = (&ticks[w.0], &ticks[w.1]);
             run.steps = b.seq - a.seq;
+            run.last_seq = ticks.last().map_or(0, |t| t.seq);
             run.steps_per_s = run.steps as f64 / ((b.t_ns - a.t_ns) as f64 * 1e-9);
             run.processes = usage(&ticks, w);
             run.other_cores = other_cores(&ticks, w);
@@ -323,6 +342,14 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
     }
     drop(node);
     run.leftovers = ns.leftovers().len();
+    if setup.record_frame_every.is_some() {
+        // The record's parts: flight.mcap, flight.1.mcap, ...
+        for entry in std::fs::read_dir(&record_dir)
+            .with_context(|| format!("reading {}", record_dir.display()))?
+        {
+            run.record_bytes += entry?.metadata()?.len();
+        }
+    }
     Ok(run)
 }
 

@@ -9,6 +9,8 @@
 //!   holes counted.
 //! - [`writer`]: the file: chunked, zstd, flushed each second, rotated by size into parts
 //!   ([`part_path`]), closed with its summary and index; the live view on the same channels.
+//! - [`figure`]: a dive at a glance (a frame with the cable found, the estimate, the commands and
+//!   the thrusters against time), drawn from its record with `plot`.
 //! - [`read`]: every message back, from every part, a part cut by a SIGKILL up to its last
 //!   complete chunk.
 //!
@@ -17,6 +19,7 @@
 //! thruster setpoints' event, and drains every tap then.
 
 pub mod channels;
+pub mod figure;
 pub mod image;
 pub mod json;
 pub mod keep;

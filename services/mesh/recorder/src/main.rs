@@ -40,12 +40,10 @@ struct Args {
     /// Flush the file this often: a SIGKILL loses at most what came since.
     #[arg(long, default_value_t = 1000, value_name = "MS")]
     flush_ms: u64,
-    /// Serve the channels live (foxglove WebSocket protocol) on --live-addr.
-    #[arg(long)]
-    live: bool,
-    /// Where the live view listens: this machine only by default.
-    #[arg(long, default_value = "127.0.0.1:8765", value_name = "HOST:PORT")]
-    live_addr: SocketAddr,
+    /// Serve the channels live (foxglove WebSocket protocol) on HOST:PORT: `--live` alone listens on
+    /// this machine only (127.0.0.1:8765); port 0 takes a free one.
+    #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765", value_name = "HOST:PORT")]
+    live: Option<SocketAddr>,
 }
 
 /// Without a step for this long, drain anyway (the episode reports, the supervisor's events).
@@ -150,13 +148,13 @@ fn record(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     opts.rotate_bytes = args.rotate_mb.saturating_mul(1 << 20);
     opts.chunk_bytes = args.chunk_kb.saturating_mul(1 << 10);
     let mut rec = FlightRecorder::create(opts, metadata)?;
-    if args.live {
-        let port = rec.serve_live(args.live_addr)?;
-        if !args.live_addr.ip().is_loopback() {
-            tracing::warn!(addr = %args.live_addr, "the live view is reachable from other machines");
+    if let Some(addr) = args.live {
+        let port = rec.serve_live(addr)?;
+        if !addr.ip().is_loopback() {
+            tracing::warn!(%addr, "the live view is reachable from other machines");
         }
         tracing::info!(
-            url = %format!("ws://{}:{port}", args.live_addr.ip()),
+            url = %format!("ws://{}:{port}", addr.ip()),
             "live view: open it in Foxglove or Lichtblick (Open connection, Foxglove WebSocket)"
         );
     }

@@ -372,9 +372,7 @@ fn the_live_view_serves_frames_and_the_estimate_over_them_to_a_websocket_client(
         &[
             "--out",
             &dir.path().join("live.mcap").display().to_string(),
-            "--live",
-            "--live-addr",
-            &format!("127.0.0.1:{port}"),
+            &format!("--live=127.0.0.1:{port}"),
             "--flush-ms",
             "50",
         ],

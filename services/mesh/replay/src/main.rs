@@ -303,7 +303,7 @@ fn replay(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
         identical = report.identical,
         "replay done"
     );
-    println!("{}", report.text());
+    cli::outln!("{}", report.text())?;
     if let Some(path) = &args.report {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir)
