@@ -152,8 +152,15 @@ fn two_step_learning_transfers_the_simulation_policy_and_improves_it_on_the_vehi
     let mut checkpoint =
         Checkpoint::single(Checkpoint::load_dof(&step_one.join("sway.ckpt"), Dof::Sway).unwrap());
     checkpoint.insert(Checkpoint::load_dof(&step_one.join("yaw.ckpt"), Dof::Yaw).unwrap());
-    let mut world =
-        TwinWorld::from_checkpoint(&scenario, &twin, &checkpoint, Eyes::Images, SEED).unwrap();
+    let mut world = TwinWorld::from_checkpoint(
+        &scenario,
+        &twin,
+        &checkpoint,
+        Eyes::Images,
+        SEED,
+        trainer::twin_world::Mode::Learn,
+    )
+    .unwrap();
     for (t, (yaw, sway)) in vehicle.yaw.iter().zip(&vehicle.sway).enumerate() {
         let r = world.run_trial();
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * (1.0 + b.abs());
