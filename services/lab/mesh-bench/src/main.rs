@@ -104,15 +104,12 @@ enum Hidden {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    if let Some(Hidden::Vehicle(args)) = &cli.command {
+    let command_line = Cli::parse();
+    if let Some(Hidden::Vehicle(args)) = &command_line.command {
         runtime::init_tracing();
         return match vehicle(args) {
             Ok(()) => ExitCode::SUCCESS,
-            Err(err) => {
-                eprintln!("mesh-bench: error: {err:#}");
-                ExitCode::FAILURE
-            }
+            Err(err) => cli::fail("mesh-bench", err.as_ref()),
         };
     }
     if let Some(Hidden::RingNode {
@@ -120,21 +117,18 @@ fn main() -> ExitCode {
         warmup,
         steps,
         common,
-    }) = cli.command
+    }) = command_line.command
     {
         return runtime::run(role.name(), &common, |rt| {
             let report = ring::run(rt, role, warmup, steps)?;
-            println!("{}", serde_json::to_string(&report)?);
+            cli::outln!("{}", serde_json::to_string(&report)?)?;
             Ok(())
         });
     }
     runtime::init_tracing();
-    match bench(&cli.bench) {
+    match bench(&command_line.bench) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(err) => {
-            eprintln!("mesh-bench: error: {err:#}");
-            ExitCode::FAILURE
-        }
+        Err(err) => cli::fail("mesh-bench", err.as_ref()),
     }
 }
 
@@ -180,7 +174,7 @@ fn report(
     json: Option<&std::path::Path>,
     md: Option<&std::path::Path>,
 ) -> Result<()> {
-    println!("{markdown}");
+    cli::outln!("{markdown}")?;
     if let Some(path) = json {
         std::fs::write(path, serde_json::to_string_pretty(figures)?)
             .with_context(|| format!("writing {}", path.display()))?;

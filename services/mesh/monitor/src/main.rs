@@ -60,9 +60,9 @@ fn main() -> ExitCode {
         if let Some(observations) = &trace_in {
             listeners.push(observations.listener());
         }
-        println!(
+        cli::outln!(
             "episode | steps | lost | eval |  yaw return | sway return | yaw K              | sway K"
-        );
+        )?;
         let sample_time = rt.scenario().timing.sample_time_s;
         rt.serve(&listeners, Timer::Timeout(Duration::from_secs(10)), |_| {
             if let (Some(observations), Some(out)) = (&trace_in, &mut trace_out) {
@@ -75,11 +75,11 @@ fn main() -> ExitCode {
             for (dof, inbox) in &inboxes {
                 for stats in inbox.drain()? {
                     if let Some(r) = episodes.add(*dof, stats) {
-                        println!(
+                        cli::outln!(
                             "{:7} | {:5} | {:4} | {:4} | {:11.3} | {:11.4} | [{:7.3}, {:7.3}] | [{:7.3}, {:7.3}]",
                             r.episode, r.steps, if r.lost { "yes" } else { "" }, if r.evaluation { "yes" } else { "" },
                             r.yaw, r.sway, r.yaw_gain[0], r.yaw_gain[1], r.sway_gain[0], r.sway_gain[1]
-                        );
+                        )?;
                     }
                 }
             }
