@@ -184,12 +184,34 @@ pub fn search(
     }
     // The last generation's mean; evaluated once more if it moved after its last evaluation.
     let last = generations.last().expect("one generation at least");
-    let search_return = if to_vec(&last.mean) == mean {
+    let mut search_return = if to_vec(&last.mean) == mean {
         mean_return.expect("evaluated")
     } else {
         evaluations += 1;
         evaluate_gains(&mean)?.mean()
     };
+    // Never worse than the start: a DOF whose search ended below its start's return on the search
+    // set (a population that drifted into losing the cable) keeps the start's gains.
+    let first = generations[0].mean_return;
+    let mut kept_start = false;
+    for dof in Dof::ALL {
+        if first.get(dof) > search_return.get(dof) {
+            tracing::warn!(
+                %dof,
+                start = first.get(dof),
+                found = search_return.get(dof),
+                "twin limit: the search ended worse than its start; the start's gains are kept"
+            );
+            for i in indices(dof) {
+                mean[i] = to_vec(&start)[i];
+            }
+            kept_start = true;
+        }
+    }
+    if kept_start {
+        evaluations += 1;
+        search_return = evaluate_gains(&mean)?.mean();
+    }
     Ok(Found {
         start,
         gains: to_gains(&mean),

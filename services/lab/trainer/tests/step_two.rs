@@ -128,8 +128,9 @@ fn step_two_closes_the_gap_on_the_harsh_twin_and_never_leaves_a_seed_worse() {
     print!("{}", trainer::step_two_bench::table(&results, &params));
     let verdict = summary(&results);
     for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
-        // The README's benchmark with ideal perception: median gap closed MEDIAN_IDEAL; 0.5 is the
-        // target, with the margin the seeds' spread needs.
+        // The README's benchmark (12 seeds, ideal perception) has a median gap closed of 65% for
+        // yaw and 100% for sway; these 8 seeds measured 68% and 100%. The bound 50% leaves yaw 15
+        // points for the spread of the median between seed sets (its seeds range 21% to 86%).
         assert!(
             d.median_gap_closed >= 0.5,
             "{dof}: median gap closed {}",
