@@ -212,13 +212,13 @@ impl ThrusterSetpoints {
 /// A behaviour's report at the end of each episode.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::LearningStats/1")]
+#[type_name("cabletrack::LearningStats/2")]
 pub struct LearningStats {
     /// The stamp of the step that ended the episode.
     pub stamp: Stamp,
     /// The episode's return (sum of the behaviour's rewards, the failure reward included).
     pub episode_return: f64,
-    /// K after the episode, for (position, rate).
+    /// K after the episode (after a rollback it closed), for (position, rate).
     pub gain: [f64; 2],
     /// Actor updates since the learner started.
     pub actor_updates: u64,
@@ -228,7 +228,19 @@ pub struct LearningStats {
     pub failed: u8,
     /// 1 while learning, 0 when only acting.
     pub learning: u8,
-    pub _reserved: [u8; 2],
+    /// 1 for an evaluation trial of step two (the policy acted without learning).
+    pub evaluation: u8,
+    /// 1 when this trial closed an evaluation that restored the best policy.
+    pub rolled_back: u8,
+    /// Step two's safety layer so far: actor updates shortened by the trust region, refused by the
+    /// stability guard, and policies replaced by the best one.
+    pub bounded: u64,
+    pub refused: u64,
+    pub rollbacks: u64,
+    /// The mean return of the evaluation this trial closed (NaN when it closed none), and the best
+    /// evaluated so far (NaN before the first).
+    pub evaluated: f64,
+    pub best_evaluated: f64,
 }
 
 /// What happened to a service of the mesh ([`SupervisorEvent::kind`]).

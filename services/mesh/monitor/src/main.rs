@@ -22,7 +22,8 @@ struct Args {
     /// Stop after this many episodes (0: until SIGTERM).
     #[arg(long, default_value_t = 0)]
     episodes: usize,
-    /// Write {"episodes","yaw","sway","steps","wall_s","lost"} here when stopping.
+    /// Write the run's record here when stopping: per episode its returns, steps, whether the cable
+    /// was lost, whether it was an evaluation trial, the gains; the evaluations; the safety counts.
     #[arg(long)]
     json: Option<PathBuf>,
     /// Also record every observation, one JSON line each: {"episode","step","time_s","found","x_g","theta"}.
@@ -60,7 +61,7 @@ fn main() -> ExitCode {
             listeners.push(observations.listener());
         }
         cli::outln!(
-            "episode | steps | lost |  yaw return | sway return | yaw K              | sway K"
+            "episode | steps | lost | eval |  yaw return | sway return | yaw K              | sway K"
         )?;
         let sample_time = rt.scenario().timing.sample_time_s;
         rt.serve(&listeners, Timer::Timeout(Duration::from_secs(10)), |_| {
@@ -75,8 +76,9 @@ fn main() -> ExitCode {
                 for stats in inbox.drain()? {
                     if let Some(r) = episodes.add(*dof, stats) {
                         cli::outln!(
-                            "{:7} | {:5} | {:4} | {:11.3} | {:11.4} | [{:7.3}, {:7.3}] | [{:7.3}, {:7.3}]",
-                            r.episode, r.steps, if r.lost { "yes" } else { "" }, r.yaw, r.sway, r.yaw_gain[0], r.yaw_gain[1], r.sway_gain[0], r.sway_gain[1]
+                            "{:7} | {:5} | {:4} | {:4} | {:11.3} | {:11.4} | [{:7.3}, {:7.3}] | [{:7.3}, {:7.3}]",
+                            r.episode, r.steps, if r.lost { "yes" } else { "" }, if r.evaluation { "yes" } else { "" },
+                            r.yaw, r.sway, r.yaw_gain[0], r.yaw_gain[1], r.sway_gain[0], r.sway_gain[1]
                         )?;
                     }
                 }

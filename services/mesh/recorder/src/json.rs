@@ -393,6 +393,25 @@ pub struct LearningJson {
     pub steps: u32,
     pub failed: bool,
     pub learning: bool,
+    #[serde(default)]
+    pub evaluation: bool,
+    #[serde(default)]
+    pub rolled_back: bool,
+    #[serde(default)]
+    pub bounded: u64,
+    #[serde(default)]
+    pub refused: u64,
+    #[serde(default)]
+    pub rollbacks: u64,
+    #[serde(default = "no_number")]
+    pub evaluated: Num,
+    #[serde(default = "no_number")]
+    pub best_evaluated: Num,
+}
+
+/// A number a record of an older format does not hold.
+fn no_number() -> Num {
+    Num(f64::NAN)
 }
 
 impl From<&LearningStats> for LearningJson {
@@ -405,6 +424,13 @@ impl From<&LearningStats> for LearningJson {
             steps: s.steps,
             failed: s.failed != 0,
             learning: s.learning != 0,
+            evaluation: s.evaluation != 0,
+            rolled_back: s.rolled_back != 0,
+            bounded: s.bounded,
+            refused: s.refused,
+            rollbacks: s.rollbacks,
+            evaluated: Num(s.evaluated),
+            best_evaluated: Num(s.best_evaluated),
         }
     }
 }
@@ -419,7 +445,13 @@ impl From<&LearningJson> for LearningStats {
             steps: j.steps,
             failed: j.failed as u8,
             learning: j.learning as u8,
-            _reserved: [0; 2],
+            evaluation: j.evaluation as u8,
+            rolled_back: j.rolled_back as u8,
+            bounded: j.bounded,
+            refused: j.refused,
+            rollbacks: j.rollbacks,
+            evaluated: j.evaluated.0,
+            best_evaluated: j.best_evaluated.0,
         }
     }
 }
@@ -436,6 +468,13 @@ pub fn learning_schema() -> Value {
             "steps": int_schema("transitions in the episode"),
             "failed": {"type": "boolean", "description": "the episode ended with the cable lost"},
             "learning": {"type": "boolean", "description": "learning (false: acting only)"},
+            "evaluation": {"type": "boolean", "description": "an evaluation trial of step two (acting without learning)"},
+            "rolled_back": {"type": "boolean", "description": "this trial closed an evaluation that restored the best policy"},
+            "bounded": int_schema("actor updates shortened by the trust region so far"),
+            "refused": int_schema("actor updates refused by the stability guard so far"),
+            "rollbacks": int_schema("policies replaced by the best one so far"),
+            "evaluated": num_schema("the mean return of the evaluation this trial closed (null: none)"),
+            "best_evaluated": num_schema("the best evaluated mean return so far (null: none yet)"),
         })),
     )
 }
@@ -720,7 +759,13 @@ mod tests {
                 steps: 450,
                 failed: 1,
                 learning: 1,
-                _reserved: [0; 2],
+                evaluation: 0,
+                rolled_back: 1,
+                bounded: 3,
+                refused: 1,
+                rollbacks: 2,
+                evaluated: -9.25,
+                best_evaluated: -8.5,
             },
             &learning_schema(),
         );
