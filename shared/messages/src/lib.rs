@@ -12,9 +12,13 @@
 //!      └──────────────────ThrusterSetpoints◀──────── thruster-allocator ◀─────────────────────────┘
 //! ```
 //!
-//! Every payload starts with a [`Stamp`]: the step's sequence number (global, increasing across
-//! episodes), its episode and step, the time, and the episode status. A consumer matches inputs by
-//! `seq` and never mixes steps.
+//! Every payload starts with a [`Stamp`]: the step's sequence number (increasing across episodes
+//! within the producer's epoch), its epoch, its episode and step, its time, the vehicle clock when it
+//! was taken (on the vehicle endpoint), and the episode status. A consumer matches inputs by epoch and
+//! `seq`, never mixes steps, and refuses stale or absurd stamps (`runtime::lockstep::Screen`).
+//!
+//! Setpoints are either a step's answer or a failsafe stop ([`ThrusterSetpoints::stop`],
+//! [`StopCause`]): the thruster driver's, which drives the thrusters to 0.
 //!
 //! Below the endpoints lies the hardware level ([`topics::hardware`]): the vehicle twin's camera and
 //! thrusters, `cabletrack/twin/<topic>`, reached only through the vehicle endpoint's adapters.
@@ -28,7 +32,7 @@ pub mod topics;
 
 pub use payload::{
     CableObservationData, CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats, Stamp,
-    Stamped, StepStatus, ThrusterSetpoints, VehicleStateMsg,
+    Stamped, StepStatus, StopCause, ThrusterSetpoints, VehicleStateMsg,
 };
 pub use ports::{FrameInbox, FrameOutbox, Inbox, Outbox, PortError};
 pub use topics::{Endpoint, Qos, Topic};
