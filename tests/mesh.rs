@@ -1,4 +1,4 @@
-//! The service mesh of the design card: seven processes (plus the monitor) over iceoryx2 shared
+//! The service mesh of DESIGN.md: seven processes (plus the monitor) over iceoryx2 shared
 //! memory in data-driven lockstep, started by the real supervisor from `config/sim-mesh.toml`.
 
 use config::Eyes;
@@ -35,35 +35,43 @@ fn trainer_returns(eyes: Eyes, seed: u64, episodes: usize) -> (Vec<f64>, Vec<f64
     )
 }
 
-#[test]
-fn twenty_episodes_learn_and_keep_the_cable_centred() {
-    let ns = Namespace::new("msh");
+/// What one 20-episode run with images showed late: the mean |x_g| and |Theta| (rad) of the
+/// observations of the second half of the last five episodes.
+struct Late {
+    x_g: f64,
+    theta: f64,
+}
+
+/// Runs 20 episodes with images on `seed`: the returns rise in both DOFs, no late episode loses the
+/// cable, nothing is left in shared memory. Returns the late centring.
+fn twenty_episodes(seed: u64) -> Late {
+    let ns = Namespace::new(&format!("ms{seed}"));
     let run = run_mesh(
         &ns,
         &MeshOptions {
             episodes: 20,
+            seed,
             eyes: "images",
             watch: true,
             timeout: Duration::from_secs(120),
-            ..Default::default()
         },
     );
     let r = &run.record;
     assert_eq!(r.episodes, 20, "{}", run.log);
     for (dof, returns) in [("yaw", &r.yaw), ("sway", &r.sway)] {
         let (first, last) = (mean(&returns[..5]), mean(&returns[15..]));
-        println!("{dof}: first 5 episodes {first:.3}, last 5 {last:.3}");
+        println!("seed {seed}, {dof}: first 5 episodes {first:.3}, last 5 {last:.3}");
         assert!(
             last > first,
-            "{dof}: the returns must rise: {first} -> {last}"
+            "seed {seed}, {dof}: the returns must rise: {first} -> {last}"
         );
     }
     assert!(
         r.lost[15..].iter().all(|l| !l),
-        "the cable was lost in a late episode: {:?}",
+        "seed {seed}: the cable was lost in a late episode: {:?}",
         r.lost
     );
-    // In the second half of the late episodes the cable is centred in the image.
+    // The second half of the late episodes, as perception saw it.
     let late: Vec<(f64, f64)> = run
         .seen
         .iter()
@@ -72,27 +80,61 @@ fn twenty_episodes_learn_and_keep_the_cable_centred() {
         .collect();
     assert!(
         late.len() >= 100,
-        "too few late observations seen: {}",
+        "seed {seed}: too few late observations seen: {}",
         late.len()
-    );
-    let x_g: Vec<f64> = late.iter().map(|v| v.0).collect();
-    let theta: Vec<f64> = late.iter().map(|v| v.1).collect();
-    println!(
-        "late |x_g| {:.4}, late |Theta| {:.2} deg",
-        mean(&x_g),
-        mean(&theta).to_degrees()
-    );
-    assert!(mean(&x_g) < 0.05, "late mean |x_g| {}", mean(&x_g));
-    assert!(
-        mean(&theta) < 5f64.to_radians(),
-        "late mean |Theta| {} rad",
-        mean(&theta)
     );
     assert!(
         ns.leftovers().is_empty(),
-        "shared memory left behind: {:?}",
+        "seed {seed}: shared memory left behind: {:?}",
         ns.leftovers()
     );
+    let x_g: Vec<f64> = late.iter().map(|v| v.0).collect();
+    let theta: Vec<f64> = late.iter().map(|v| v.1).collect();
+    let late = Late {
+        x_g: mean(&x_g),
+        theta: mean(&theta),
+    };
+    println!(
+        "seed {seed}: late |x_g| {:.5}, late |Theta| {:.3} deg",
+        late.x_g,
+        late.theta.to_degrees()
+    );
+    late
+}
+
+/// Seeds 1 to 3, each run learns, and late in the run the cable is centred: the median over the
+/// seeds and the worst seed of the late mean |x_g| and |Theta| stay within the figures the README
+/// publishes for these seeds, plus the margin the noise needs.
+///
+/// The noise, measured: the same seed run again differs by up to 0.0006 in |x_g| and 0.01 degree in
+/// |Theta| (the test's probe, outside the lockstep, may miss a few observations); from one seed to
+/// another the figures vary far more. Over seeds 1 to 18 taken three at a time (six runs of this
+/// test with other seeds) the median of three ranged 0.0066 to 0.0089 in |x_g| and 0.19 to 0.34
+/// degree in |Theta|, the worst of three 0.0069 to 0.0138 and 0.23 to 0.47 degree. Each margin is
+/// that range's width.
+#[test]
+fn over_three_seeds_twenty_episodes_learn_and_keep_the_cable_centred() {
+    let late: Vec<Late> = [1, 2, 3].into_iter().map(twenty_episodes).collect();
+    let x_g: Vec<f64> = late.iter().map(|l| l.x_g).collect();
+    let theta: Vec<f64> = late.iter().map(|l| l.theta.to_degrees()).collect();
+    let (x_g_median, x_g_worst) = (stats::median(x_g.iter().copied()), max(&x_g));
+    let (theta_median, theta_worst) = (stats::median(theta.iter().copied()), max(&theta));
+    // Published: median 0.0066, worst 0.0105; margins 0.0023 and 0.0070 (see above).
+    assert!(x_g_median < 0.0066 + 0.0023, "median late |x_g| {x_g:?}");
+    assert!(x_g_worst < 0.0105 + 0.0070, "worst late |x_g| {x_g:?}");
+    // Published: median 0.31 degree, worst 0.37; margins 0.16 and 0.24 degree (see above).
+    assert!(
+        theta_median < 0.31 + 0.16,
+        "median late |Theta| {theta:?} deg"
+    );
+    assert!(
+        theta_worst < 0.37 + 0.24,
+        "worst late |Theta| {theta:?} deg"
+    );
+}
+
+fn max(values: &[f64]) -> f64 {
+    values.iter().copied().fold(f64::NEG_INFINITY, f64::max)
 }
 
 #[test]
@@ -110,7 +152,8 @@ fn the_same_seed_gives_the_same_returns_twice() {
     assert_ne!(a.yaw, c.yaw, "another seed, other episodes");
 }
 
-/// Runs the mesh and the in-process trainer on the same seed and asserts the same returns.
+/// Runs the mesh and the in-process trainer on the same seed and asserts the same returns, bit for
+/// bit (the monitor's JSON record carries each f64 exactly: serde_json's `float_roundtrip`).
 fn assert_mesh_equals_trainer(label: &str, eyes: Eyes, seed: u64, episodes: usize) {
     let run = run_mesh(
         &Namespace::new(label),
@@ -132,8 +175,9 @@ fn assert_mesh_equals_trainer(label: &str, eyes: Eyes, seed: u64, episodes: usiz
     ] {
         assert_eq!(mesh.len(), trainer.len());
         for (e, (m, t)) in mesh.iter().zip(trainer).enumerate() {
-            assert!(
-                (m - t).abs() <= 1e-9 * t.abs().max(1.0),
+            assert_eq!(
+                m.to_bits(),
+                t.to_bits(),
                 "{dof} episode {e}: mesh {m} vs trainer {t}"
             );
         }
@@ -148,8 +192,8 @@ fn the_mesh_and_the_trainer_agree_with_ideal_perception() {
 }
 
 /// With rendered images and perception in the loop, the mesh renders the trainer's frames (same
-/// seed stream, same frame numbers) and runs the same perception: the returns agree exactly too, a
-/// stronger check than "statistically the same".
+/// seed stream, same frame numbers) and runs the same perception: the returns are the same to the
+/// last bit too, a stronger check than "statistically the same".
 #[test]
 fn the_mesh_and_the_trainer_agree_with_image_perception() {
     assert_mesh_equals_trainer("mtm", Eyes::Images, 3, 4);

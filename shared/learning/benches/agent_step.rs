@@ -39,16 +39,24 @@ fn closed_loop(steps: usize, mut act: impl FnMut([f64; 2], StepStatus) -> f64) -
     (start.elapsed().as_secs_f64(), episodes)
 }
 
-fn main() {
+fn main() -> std::process::ExitCode {
+    // Output stops quietly when its reader goes away (`cargo bench ... | head -1`).
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => cli::fail("agent_step", &e),
+    }
+}
+
+fn run() -> std::io::Result<()> {
     let steps: usize = std::env::var("AGENT_BENCH_STEPS")
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(4_000_000);
     let (plant, _) = closed_loop(steps, |x, _| black_box(-x[0] - 0.5 * x[1]));
-    println!(
+    cli::outln!(
         "plant and loop alone: {:.1} ns/step",
         plant * 1e9 / steps as f64
-    );
+    )?;
     let params = LearningParams::default();
     for algorithm in Algorithm::ALL {
         let mut agent = Agent::new(
@@ -60,13 +68,14 @@ fn main() {
             1,
         );
         let (secs, episodes) = closed_loop(steps, |x, kind| agent.step(x, kind).action);
-        println!(
+        cli::outln!(
             "{algorithm:>6}: {:.1} ns/step with the plant, {:.1} ns/step for the agent ({steps} steps, {episodes} episodes, \
              {} actor updates, gain {:?})",
             secs * 1e9 / steps as f64,
             (secs - plant) * 1e9 / steps as f64,
             agent.learner().actor_updates(),
             agent.gain(),
-        );
+        )?;
     }
+    Ok(())
 }

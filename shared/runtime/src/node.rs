@@ -116,7 +116,8 @@ pub fn init_tracing() {
 }
 
 /// Runs a service: sets up tracing, starts the runtime, calls `body`, and turns an error into a
-/// logged chain and a non-zero exit.
+/// logged chain and a non-zero exit (standard output's reader gone: a quiet, successful exit, see
+/// `cli`).
 pub fn run(
     name: &'static str,
     args: &CommonArgs,
@@ -137,10 +138,10 @@ pub fn run(
         });
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(err) if cli::reader_gone(err.as_ref()) => ExitCode::SUCCESS,
         Err(err) => {
             tracing::error!("{err:#}");
-            eprintln!("{name}: error: {err:#}");
-            ExitCode::FAILURE
+            cli::fail(name, err.as_ref())
         }
     }
 }

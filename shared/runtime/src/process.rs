@@ -18,6 +18,7 @@ pub struct Spawn {
     name: String,
     cmd: Command,
     log: Option<PathBuf>,
+    stdout: Option<Stdio>,
     die_with_parent: bool,
 }
 
@@ -34,6 +35,7 @@ impl Spawn {
             name,
             cmd: Command::new(program),
             log: None,
+            stdout: None,
             die_with_parent: false,
         }
     }
@@ -73,6 +75,12 @@ impl Spawn {
         self
     }
 
+    /// Stdout goes to `out` instead (e.g. a pipe); with [`Spawn::log`] the log keeps stderr.
+    pub fn stdout(mut self, out: impl Into<Stdio>) -> Self {
+        self.stdout = Some(out.into());
+        self
+    }
+
     /// The process gets SIGTERM when this one dies, so nothing runs on as an orphan.
     pub fn die_with_parent(mut self) -> Self {
         self.die_with_parent = true;
@@ -85,6 +93,9 @@ impl Spawn {
         if let Some(log) = &self.log {
             let file = std::fs::File::create(log)?;
             self.cmd.stdout(file.try_clone()?).stderr(file);
+        }
+        if let Some(out) = self.stdout.take() {
+            self.cmd.stdout(out);
         }
         if self.die_with_parent {
             // SAFETY: prctl in the child before exec is async-signal-safe.

@@ -30,7 +30,15 @@ fn fps(mut run: impl FnMut()) -> f64 {
     stats::median(rates)
 }
 
-fn main() {
+fn main() -> std::process::ExitCode {
+    // Output stops quietly when its reader goes away (`cargo bench ... | head -1`).
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => cli::fail("throughput", &e),
+    }
+}
+
+fn run() -> std::io::Result<()> {
     let scenario = Scenario::default();
     let camera = model::Camera::new(&scenario.camera);
     let cable = model::Cable::new(&scenario.cable);
@@ -64,8 +72,8 @@ fn main() {
         })
         .collect();
 
-    println!("| what (320x240, one core) | clean: frames/s | all effects: frames/s |");
-    println!("|---|---|---|");
+    cli::outln!("| what (320x240, one core) | clean: frames/s | all effects: frames/s |")?;
+    cli::outln!("|---|---|---|")?;
     let mut rows: Vec<(&str, [f64; 2])> = Vec::new();
     let configs = [RenderParams::clean(), scenario.render.clone()];
 
@@ -144,7 +152,8 @@ fn main() {
     rows.push(("perception, tracking along a path (band search)", track_fps));
     rows.push(("render + perceive (SimulatedVision::observe)", loop_fps));
     for (name, [clean, effects]) in rows {
-        println!("| {name} | {clean:.0} | {effects:.0} |");
+        cli::outln!("| {name} | {clean:.0} | {effects:.0} |")?;
     }
-    println!("\n(median of {RUNS} runs of {FRAMES} frames each)");
+    cli::outln!("\n(median of {RUNS} runs of {FRAMES} frames each)")?;
+    Ok(())
 }

@@ -3,6 +3,8 @@
 //! - `vision render --pose X,Y,PSI --out FILE`: the frame seen from a pose (pool frame, PSI in degrees).
 //! - `vision detect FILE_OR_DIR...`: one JSON line per image with the cable found in it.
 //! - `vision dataset --n N --out DIR`: rendered frames with the geometric camera's ground truth.
+//!
+//! Output stops quietly when its reader goes away (`vision detect DIR | head -3`: see `cli`).
 
 use clap::{Args, Parser, Subcommand};
 use config::{CameraParams, RenderParams, Scenario};
@@ -144,26 +146,8 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(code) => code,
-        Err(e) => {
-            eprintln!("vision: error: {}", chain(e.as_ref()));
-            ExitCode::FAILURE
-        }
+        Err(e) => cli::fail("vision", e.as_ref()),
     }
-}
-
-/// An error and its sources, joined.
-fn chain(e: &dyn std::error::Error) -> String {
-    let mut s = e.to_string();
-    let mut source = e.source();
-    while let Some(cause) = source {
-        let text = cause.to_string();
-        if !s.contains(&text) {
-            s.push_str(": ");
-            s.push_str(&text);
-        }
-        source = cause.source();
-    }
-    s
 }
 
 type Fallible<T> = Result<T, Box<dyn std::error::Error>>;
@@ -204,7 +188,7 @@ fn render(a: RenderArgs) -> Fallible<ExitCode> {
     frame.write(&a.out)?;
     let mut truth = truth_json(&scenario, &pose);
     truth["file"] = json!(a.out.display().to_string());
-    println!("{truth}");
+    cli::outln!("{truth}")?;
     Ok(ExitCode::SUCCESS)
 }
 
@@ -269,10 +253,10 @@ fn detect(a: DetectArgs) -> Fallible<ExitCode> {
                 failures += 1;
                 let line = DetectLine {
                     file: &name,
-                    error: Some(chain(&e)),
+                    error: Some(cli::chain(&e)),
                     ..DetectLine::default()
                 };
-                println!("{}", serde_json::to_string(&line)?);
+                cli::outln!("{}", serde_json::to_string(&line)?)?;
                 continue;
             }
         };
@@ -316,7 +300,7 @@ fn detect(a: DetectArgs) -> Fallible<ExitCode> {
             theta_rate: a.track.then_some(obs.theta_rate),
             error: None,
         };
-        println!("{}", serde_json::to_string(&line)?);
+        cli::outln!("{}", serde_json::to_string(&line)?)?;
     }
     if a.timing {
         let fps = if seconds > 0.0 {

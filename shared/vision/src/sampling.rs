@@ -36,8 +36,8 @@ pub struct SampledPose {
 }
 
 impl PoseSampler {
-    /// The test range: x_g in [-0.4, 0.4], Theta in [-60, 60] degrees, velocities up to the
-    /// scenario's (surge 0.3 m/s, sway 0.15 m/s, yaw rate 0.3 rad/s).
+    /// The accuracy tests' range, wider than the episodes' starts: x_g in [-0.4, 0.4], Theta in
+    /// [-60, 60] degrees, velocities up to the scenario's (surge 0.3 m/s, sway 0.15 m/s, yaw rate 0.3 rad/s).
     pub fn new(seed: u64) -> Self {
         PoseSampler {
             rng: SplitMix64::new(seed),

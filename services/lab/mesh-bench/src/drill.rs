@@ -69,6 +69,8 @@ pub struct DrillSetup {
     pub seed: u64,
     pub sim_episodes: u32,
     pub period_s: f64,
+    /// Where to keep the vehicle mesh's log (every service's output), if anywhere.
+    pub keep_log: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
@@ -341,6 +343,11 @@ pub fn run(setup: &DrillSetup) -> Result<DrillReport> {
     let stopped = sup.stop(Duration::from_secs(10));
     stop.store(true, Ordering::Relaxed);
     let _ = watcher.join();
+    if let Some(keep) = &setup.keep_log {
+        std::fs::copy(&log, keep)
+            .with_context(|| format!("keeping the log as {}", keep.display()))?;
+        eprintln!("fault-drill: the vehicle mesh's log is {}", keep.display());
+    }
     let mut report = outcome?;
     if !stopped.success() {
         eprintln!("fault-drill: the supervisor stopped with {stopped:?}");

@@ -1,4 +1,4 @@
-//! The service mesh's benchmark (issue 4, Performance): how fast the seven processes close the loop
+//! The service mesh's benchmark: how fast the seven processes close the loop
 //! with images, how long each hop and each step takes, what each process costs in CPU and memory, and
 //! how far all of that is from the limit, measured in the same run.
 //!

@@ -102,7 +102,7 @@ struct DrillArgs {
     sim_mesh: PathBuf,
     #[arg(long, default_value = "config/vehicle.toml")]
     vehicle_mesh: PathBuf,
-    /// Write the figures here as JSON.
+    /// Write the figures here as JSON (and the vehicle mesh's log beside it, as .log).
     #[arg(long)]
     json: Option<PathBuf>,
 }
@@ -132,25 +132,19 @@ enum Hidden {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    if let Some(Hidden::Vehicle(args)) = &cli.command {
+    let command_line = Cli::parse();
+    if let Some(Hidden::Vehicle(args)) = &command_line.command {
         runtime::init_tracing();
         return match vehicle(args) {
             Ok(()) => ExitCode::SUCCESS,
-            Err(err) => {
-                eprintln!("mesh-bench: error: {err:#}");
-                ExitCode::FAILURE
-            }
+            Err(err) => cli::fail("mesh-bench", err.as_ref()),
         };
     }
-    if let Some(Hidden::Drill(args)) = &cli.command {
+    if let Some(Hidden::Drill(args)) = &command_line.command {
         runtime::init_tracing();
         return match drill(args) {
             Ok(()) => ExitCode::SUCCESS,
-            Err(err) => {
-                eprintln!("mesh-bench: error: {err:#}");
-                ExitCode::FAILURE
-            }
+            Err(err) => cli::fail("mesh-bench", err.as_ref()),
         };
     }
     if let Some(Hidden::RingNode {
@@ -158,21 +152,18 @@ fn main() -> ExitCode {
         warmup,
         steps,
         common,
-    }) = cli.command
+    }) = command_line.command
     {
         return runtime::run(role.name(), &common, |rt| {
             let report = ring::run(rt, role, warmup, steps)?;
-            println!("{}", serde_json::to_string(&report)?);
+            cli::outln!("{}", serde_json::to_string(&report)?)?;
             Ok(())
         });
     }
     runtime::init_tracing();
-    match bench(&cli.bench) {
+    match bench(&command_line.bench) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(err) => {
-            eprintln!("mesh-bench: error: {err:#}");
-            ExitCode::FAILURE
-        }
+        Err(err) => cli::fail("mesh-bench", err.as_ref()),
     }
 }
 
@@ -228,10 +219,11 @@ fn drill(args: &DrillArgs) -> Result<()> {
         seed: args.seed,
         sim_episodes: args.sim_episodes,
         period_s: scenario.timing.sample_time_s,
+        keep_log: args.json.as_ref().map(|j| j.with_extension("log")),
     };
     let run = mesh_bench::drill::run(&setup)?;
     let markdown = run.markdown();
-    println!("{}", serde_json::to_string_pretty(&run)?);
+    cli::outln!("{}", serde_json::to_string_pretty(&run)?)?;
     report(&run, &markdown, args.json.as_deref(), None)
 }
 
@@ -242,7 +234,7 @@ fn report(
     json: Option<&std::path::Path>,
     md: Option<&std::path::Path>,
 ) -> Result<()> {
-    println!("{markdown}");
+    cli::outln!("{markdown}")?;
     if let Some(path) = json {
         std::fs::write(path, serde_json::to_string_pretty(figures)?)
             .with_context(|| format!("writing {}", path.display()))?;

@@ -1,4 +1,5 @@
-//! `trainer`: step one of the two-step learning, in one process. See `trainer --help`.
+//! `trainer`: step one of the two-step learning, in one process. See `trainer --help`. Output stops
+//! quietly when its reader goes away (`trainer ... | head -1`: see `cli`).
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
@@ -150,7 +151,7 @@ enum Command {
     },
 }
 
-fn main() {
+fn main() -> std::process::ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
@@ -159,9 +160,9 @@ fn main() {
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
-    if let Err(err) = run(Cli::parse()) {
-        eprintln!("trainer: error: {err:#}");
-        std::process::exit(1);
+    match run(Cli::parse()) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(err) => cli::fail("trainer", err.as_ref()),
     }
 }
 
@@ -226,19 +227,19 @@ fn run(cli: Cli) -> Result<()> {
             let eval = experiment::evaluate(&setup, gains, episodes, seed, &progress);
             progress.finish();
             for dof in Dof::ALL {
-                println!(
+                cli::outln!(
                     "{dof:>4}: K = [{:8.4}, {:8.4}]  mean return {:9.4} ± {:.4}",
                     gains.get(dof)[0],
                     gains.get(dof)[1],
                     eval.mean_return.get(dof),
                     eval.std_error.get(dof)
-                );
+                )?;
             }
-            println!(
+            cli::outln!(
                 "cable lost in {:.2}% of {} episodes",
                 100.0 * eval.lost_fraction,
                 eval.episodes
-            );
+            )?;
             Ok(())
         }
         Command::PolicyMap {
@@ -248,11 +249,11 @@ fn run(cli: Cli) -> Result<()> {
         } => policy_map(&setup, &checkpoint, &out, cells),
         Command::Report { dir } => {
             let path = trainer::report::write(&dir, &setup.scenario)?;
-            println!(
+            cli::outln!(
                 "wrote {} and {}",
                 path.display(),
                 dir.join("summary.json").display()
-            );
+            )?;
             Ok(())
         }
         Command::Bench { repeats, episodes } => bench(&setup, repeats.max(1), episodes.max(1)),
@@ -265,19 +266,19 @@ fn run(cli: Cli) -> Result<()> {
             let limit = experiment::limit(&setup, episodes, seed, &progress)?;
             progress.finish();
             for dof in Dof::ALL {
-                println!(
+                cli::outln!(
                     "{dof:>4}: K = [{:8.4}, {:8.4}]  mean return {:9.4} ± {:.4}",
                     limit.gain.get(dof)[0],
                     limit.gain.get(dof)[1],
                     limit.mean_return.get(dof),
                     limit.std_error.get(dof)
-                );
+                )?;
             }
-            println!(
+            cli::outln!(
                 "cable lost in {:.2}% of {} episodes",
                 100.0 * limit.lost_fraction,
                 limit.episodes
-            );
+            )?;
             if let Some(path) = json {
                 write_json(&path, &limit).with_context(|| format!("writing {}", path.display()))?;
             }
@@ -337,7 +338,7 @@ fn fig5(
     let elapsed = start.elapsed().as_secs_f64();
     for dof in Dof::ALL {
         let late = (episodes / 10).max(1);
-        println!(
+        cli::outln!(
             "{dof:>4}: last {late} episodes' mean return: NAC {:9.4}, OLPOMDP {:9.4}, LQR limit {:9.4}; NAC within 10% of the limit from episode {}",
             fig.nac.get(dof).tail_mean(late),
             fig.gpomdp.get(dof).tail_mean(late),
@@ -346,10 +347,10 @@ fn fig5(
                 .get(dof)
                 .first_within(*fig.limit.get(dof), 0.1, 5)
                 .map_or("-".into(), |e| e.to_string()),
-        );
+        )?;
     }
-    println!("Fig. 5 ({runs} runs x {episodes} episodes, both algorithms) in {elapsed:.2} s");
-    println!("wrote {} and {}", json.display(), png.display());
+    cli::outln!("Fig. 5 ({runs} runs x {episodes} episodes, both algorithms) in {elapsed:.2} s")?;
+    cli::outln!("wrote {} and {}", json.display(), png.display())?;
     Ok(())
 }
 
@@ -381,7 +382,7 @@ fn train(
     };
     let start = Instant::now();
     let mut window: Vec<EpisodeResult> = Vec::new();
-    println!("episode |  yaw return | sway return | lost | yaw K              | sway K");
+    cli::outln!("episode |  yaw return | sway return | lost | yaw K              | sway K")?;
     for e in 1..=episodes {
         window.push(world.run_episode());
         if log_every > 0 && (e % log_every == 0 || e == episodes) {
@@ -389,7 +390,7 @@ fn train(
                 window.iter().map(|r| *r.returns.get(dof)).sum::<f64>() / window.len() as f64
             };
             let last = window.last().expect("one episode at least");
-            println!(
+            cli::outln!(
                 "{e:7} | {:11.3} | {:11.4} | {:4} | [{:7.3}, {:7.3}] | [{:7.3}, {:7.3}]",
                 mean(Dof::Yaw),
                 mean(Dof::Sway),
@@ -398,7 +399,7 @@ fn train(
                 last.gains.yaw[1],
                 last.gains.sway[0],
                 last.gains.sway[1],
-            );
+            )?;
             window.clear();
         }
         if every > 0 && e % every == 0 {
@@ -406,11 +407,11 @@ fn train(
         }
     }
     save(&world)?;
-    println!(
+    cli::outln!(
         "{episodes} episodes in {:.2} s; checkpoint written to {}",
         start.elapsed().as_secs_f64(),
         path.display()
-    );
+    )?;
     Ok(())
 }
 
@@ -442,7 +443,7 @@ fn policy_map(
     write_json(&json, &maps).with_context(|| format!("writing {}", json.display()))?;
     let png = out.join("policy-map.png");
     plot::Figure::new(panels, 2).save_png(&png)?;
-    println!("wrote {} and {}", json.display(), png.display());
+    cli::outln!("wrote {} and {}", json.display(), png.display())?;
     Ok(())
 }
 
@@ -483,12 +484,12 @@ fn bench(setup: &Setup, repeats: usize, episodes: usize) -> Result<()> {
     };
     let baseline = steps_per_s(false);
     let learners = steps_per_s(true);
-    println!("single thread, median of {repeats} runs of {episodes} episodes:");
-    println!("  model + camera + allocator, fixed policies: {baseline:>12.0} steps/s");
-    println!(
+    cli::outln!("single thread, median of {repeats} runs of {episodes} episodes:")?;
+    cli::outln!("  model + camera + allocator, fixed policies: {baseline:>12.0} steps/s")?;
+    cli::outln!(
         "  ... with the NAC sway and yaw learners:     {learners:>12.0} steps/s ({:.2}x the baseline's time per step)",
         baseline / learners
-    );
+    )?;
     let mut walls = Vec::new();
     for r in 0..repeats {
         let start = Instant::now();
@@ -499,13 +500,13 @@ fn bench(setup: &Setup, repeats: usize, episodes: usize) -> Result<()> {
         experiment::limit(setup, 4000, r as u64 + 1, &hidden)?;
         walls.push(start.elapsed().as_secs_f64());
     }
-    println!(
+    cli::outln!(
         "full Fig. 5 (100 runs x 100 episodes, NAC and OLPOMDP, plus the limit) on {} cores: median {:.2} s (min {:.2}, max {:.2})",
         std::thread::available_parallelism().map_or(1, |p| p.get()),
         median(walls.clone()),
         walls.iter().copied().fold(f64::INFINITY, f64::min),
         walls.iter().copied().fold(0.0, f64::max),
-    );
+    )?;
     Ok(())
 }
 
@@ -530,13 +531,13 @@ fn sweep(
     let progress = Progress::new("sweep", (alphas.len() * runs) as u64);
     let rows = experiment::sweep(setup, algorithm, &alphas, runs, episodes, seed, &progress);
     progress.finish();
-    println!(
+    cli::outln!(
         "{algorithm} learning-rate sweep: {runs} runs x {episodes} episodes per rate (returns: mean over all episodes / over the last quarter)"
-    );
-    println!("| alpha | yaw mean | yaw late | sway mean | sway late | late losses |");
-    println!("|---:|---:|---:|---:|---:|---:|");
+    )?;
+    cli::outln!("| alpha | yaw mean | yaw late | sway mean | sway late | late losses |")?;
+    cli::outln!("|---:|---:|---:|---:|---:|---:|")?;
     for r in &rows {
-        println!(
+        cli::outln!(
             "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.1}% |",
             r.alpha,
             r.mean_return.yaw,
@@ -544,13 +545,14 @@ fn sweep(
             r.mean_return.sway,
             r.late_return.sway,
             100.0 * r.late_lost
-        );
+        )?;
     }
     let best = experiment::best_alpha(&rows);
-    println!(
+    cli::outln!(
         "best (highest late return): yaw {}, sway {}",
-        best.yaw, best.sway
-    );
+        best.yaw,
+        best.sway
+    )?;
     let path = out.join(format!("sweep-{algorithm}.json"));
     #[derive(serde::Serialize)]
     struct SweepFile<'a> {
@@ -573,7 +575,7 @@ fn sweep(
         },
     )
     .with_context(|| format!("writing {}", path.display()))?;
-    println!("wrote {}", path.display());
+    cli::outln!("wrote {}", path.display())?;
     Ok(())
 }
 

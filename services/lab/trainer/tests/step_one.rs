@@ -18,8 +18,9 @@ fn setup() -> Setup {
     .unwrap()
 }
 
-/// The bar: after 100 episodes, over 100 independent runs, NAC's mean returns are within
-/// 10% of the LQR limit and above the baseline's, and the cable stays in view in late episodes.
+/// What step one must reach: after 100 episodes, over 100 independent runs, NAC's mean returns are
+/// within 10% of the LQR limit and above the baseline's, and the cable stays in view in late
+/// episodes.
 #[test]
 fn nac_reaches_the_lqr_limit_within_100_episodes_and_beats_the_baseline() {
     let setup = setup();

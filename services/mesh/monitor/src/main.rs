@@ -89,9 +89,9 @@ fn main() -> ExitCode {
         if let Some(observations) = &trace_in {
             listeners.push(observations.listener());
         }
-        println!(
+        cli::outln!(
             "episode | steps | lost |  yaw return | sway return | yaw K              | sway K"
-        );
+        )?;
         let sample_time = rt.scenario().timing.sample_time_s;
         let write = |episodes: &Episodes| -> anyhow::Result<()> {
             let Some(path) = &args.json else {
@@ -128,10 +128,10 @@ fn main() -> ExitCode {
                     }
                     screen.accept(&stats.stamp, now);
                     if let Some(r) = episodes.add(*dof, stats) {
-                        println!(
+                        cli::outln!(
                             "{:7} | {:5} | {:4} | {:11.3} | {:11.4} | [{:7.3}, {:7.3}] | [{:7.3}, {:7.3}]",
                             r.episode, r.steps, if r.lost { "yes" } else { "" }, r.yaw, r.sway, r.yaw_gain[0], r.yaw_gain[1], r.sway_gain[0], r.sway_gain[1]
-                        );
+                        )?;
                         write(&episodes)?;
                     }
                 }

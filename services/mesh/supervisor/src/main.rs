@@ -59,8 +59,7 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(err) => {
             tracing::error!("{err:#}");
-            eprintln!("supervisor: error: {err:#}");
-            ExitCode::FAILURE
+            cli::fail("supervisor", err.as_ref())
         }
     }
 }

@@ -13,10 +13,12 @@
 //! seen: how far the producer's clock is behind, plus the fastest delivery. A step arriving more
 //! than [`ScreenLimits::max_age`] later than that (a stalled producer's backlog, a topic's history
 //! from long ago) is refused as too old; one arriving more than [`ScreenLimits::max_ahead`] earlier
-//! (a stamp from the future) as ahead. A new epoch's first step is accepted when its clock agrees
-//! with the consumer's within those limits; otherwise it is refused and the next step of that epoch
-//! settles it: accepted when their offsets agree within `max_age` (a producer whose clock is behind,
-//! e.g. restarted with its time base stepped back, but whose steps come at their pace).
+//! (a stamp from the future) as ahead, unless it agrees with the consumer's own clock (then the
+//! epoch's earlier steps came late, and its offset is learned again). A new epoch's first step is
+//! accepted when its clock agrees with the consumer's within those limits; otherwise it is refused
+//! and the next step of that epoch settles it: accepted when their offsets agree within half a
+//! period (a producer whose clock is behind, e.g. restarted with its time base stepped back, but
+//! whose steps come at their pace; a backlog read at once is a period apart per step).
 //!
 //! **Absurd numbers.** A step's `seq` may not jump further than the steps its producer could have
 //! taken since the last one (`8 + 2 x` the elapsed sample periods on its clock: frames dropped on
@@ -203,9 +205,13 @@ impl Screen {
                 self.unsettled = None;
                 return Verdict::New;
             }
+            // Steps at their pace arrive with the same offset; a backlog read at once (a consumer
+            // that restarted behind its input) arrives a period apart per step and is not taken
+            // for a clock that is behind.
+            let pace = self.limits.period.as_nanos() as i128 / 2;
             if let Some((epoch, first)) = self.unsettled
                 && epoch == stamp.epoch
-                && (offset - first).abs() <= max_age
+                && (offset - first).abs() <= pace
             {
                 return Verdict::New;
             }
@@ -260,7 +266,10 @@ impl Screen {
                     late: nanos(late),
                 });
             }
-            if late < -max_ahead {
+            // Earlier than the epoch's pace so far: a stamp from the future, unless the step agrees
+            // with this consumer's own clock (the epoch's first steps then came late, e.g. a backlog
+            // read at start, and the epoch's offset is learned again from this one).
+            if late < -max_ahead && !(-max_ahead..=max_age).contains(&offset) {
                 return Verdict::Refused(Refusal::Ahead {
                     seq,
                     by: nanos(-late),
@@ -429,6 +438,44 @@ mod tests {
         // A stalled step of that epoch is still too old.
         assert!(matches!(
             feed(&mut s, stamp(9, 4, back + 600 * MS), T0 + 1500 * MS),
+            Verdict::Refused(Refusal::TooOld { .. })
+        ));
+    }
+
+    /// A consumer restarted behind its input reads a backlog at once: the stale steps are refused,
+    /// and the fresh steps after them are accepted, never refused as ahead of the backlog's pace.
+    #[test]
+    fn a_backlog_read_at_start_is_refused_and_fresh_steps_follow() {
+        let mut s = Screen::new("t", limits());
+        let now = T0 + 2_000 * MS;
+        for (seq, age) in [(1, 1000), (2, 800), (3, 600)] {
+            assert!(
+                matches!(
+                    feed(&mut s, stamp(7, seq, now - age * MS), now),
+                    Verdict::Refused(Refusal::TooOld { .. })
+                ),
+                "step {seq}, {age} ms old"
+            );
+        }
+        for k in 4..10u64 {
+            let taken = now + (k - 3) * 200 * MS;
+            assert_eq!(
+                feed(&mut s, stamp(7, k, taken), taken + MS),
+                Verdict::New,
+                "fresh step {k}"
+            );
+        }
+        // Had a late step been accepted first, a fresh one re-bases the epoch's pace.
+        let mut s = Screen::new("t", limits());
+        let late = T0 + 1000 * MS;
+        assert_eq!(feed(&mut s, stamp(8, 1, T0), T0 + 300 * MS), Verdict::New);
+        assert_eq!(
+            feed(&mut s, stamp(8, 2, late), late + 2 * MS),
+            Verdict::New,
+            "faster than before, and on the consumer's clock"
+        );
+        assert!(matches!(
+            feed(&mut s, stamp(8, 3, late + 200 * MS), late + 700 * MS),
             Verdict::Refused(Refusal::TooOld { .. })
         ));
     }
