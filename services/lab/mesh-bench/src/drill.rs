@@ -2,7 +2,8 @@
 //! under the supervisor at the vehicle's 5 Hz, and, in one run, every fault the vehicle's safety
 //! layer is there for, with what reached the twin's thrusters as the evidence:
 //!
-//! 1. `kills` random SIGKILLs across every vehicle service: each must be restarted; the steps the
+//! 1. `kills` random SIGKILLs across every vehicle service (a service again only after the
+//!    supervisor's restart window, 60 s: 8 kills a minute at most): each must be restarted; the steps the
 //!    loop missed (gaps in the camera's `seq` answered at the thrusters) and the time from the
 //!    restarted process's appearance to the next setpoints at the thrusters are measured.
 //! 2. A stall (SIGSTOP for 2 s, then SIGCONT) of perception and of each behaviour: the thrusters
@@ -398,9 +399,31 @@ fn drill(
     let mut restart_ms = Vec::new();
     let mut by_service = std::collections::BTreeMap::<&str, u32>::new();
 
-    // 1. Kills.
+    // 1. Kills. A service is killed again only after the supervisor's restart window: a crash loop
+    // is the supervisor's to stop (it backs off, then gives up), not what the drill measures.
+    let window = Duration::from_secs_f64(
+        supervisor::MeshFile::load(&setup.vehicle_mesh)?
+            .restart
+            .window_s,
+    );
+    let mut last_kill: std::collections::BTreeMap<&str, Instant> = Default::default();
     for k in 0..setup.kills {
-        let name = SERVICES[choices.below(SERVICES.len())];
+        let eligible = |at: Instant, last: &std::collections::BTreeMap<&str, Instant>| {
+            SERVICES
+                .iter()
+                .copied()
+                .filter(|n| last.get(n).is_none_or(|t| at.duration_since(*t) >= window))
+                .collect::<Vec<_>>()
+        };
+        if eligible(Instant::now(), &last_kill).is_empty() {
+            // Until the service killed longest ago may be killed again.
+            let free_at = last_kill.values().min().copied().expect("all killed") + window;
+            let left = free_at.saturating_duration_since(Instant::now());
+            let _ = seen.wait_for(usize::MAX, left, |_| false);
+        }
+        let names = eligible(Instant::now(), &last_kill);
+        let name = names[choices.below(names.len())];
+        last_kill.insert(name, Instant::now());
         *by_service.entry(name).or_default() += 1;
         let Some(pid) = pid_of(sup, name) else {
             bail!("{name} is not running\n{}", sup.tail(40));
