@@ -15,8 +15,9 @@ use anyhow::{Context, bail};
 use clap::{CommandFactory, FromArgMatches, Parser};
 use config::Dof;
 use learning::{Agent, AgentState, Algorithm, Checkpoint, LearnerState};
+use messages::CableObservationMsg;
 use messages::topics;
-use runtime::{Answer, CommonArgs, Flow, Runtime, Stopped};
+use runtime::{Answer, BadValues, CommonArgs, Flow, Runtime, Stopped};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -223,10 +224,21 @@ pub fn serve(rt: &Runtime, dof: Dof, args: &Args) -> anyhow::Result<()> {
     let observations = rt.inbox(&topics::CABLE_OBSERVATION)?;
     let commands = rt.outbox(&topics::command(dof))?;
     let stats = rt.outbox(&topics::learning(dof))?;
+    let limits = rt.scenario().observation.clone();
+    let mut bad = BadValues::new(observations.service());
+    let clock = *rt.clock();
     let served = rt.serve_steps(
         &observations,
         &mut behaviour,
-        |behaviour, msg| Ok(behaviour.step(msg)),
+        |behaviour, msg| {
+            // A learner never sees a value outside the observation box, nor a NaN.
+            let (observation, fixes) = msg.observation.bounded(&limits);
+            bad.note(fixes, msg.stamp.seq, clock.now_ns());
+            Ok(Some(behaviour.step(&CableObservationMsg {
+                stamp: msg.stamp,
+                observation,
+            })))
+        },
         |behaviour, answer| {
             let out = answer.output();
             commands.send(out.command)?;

@@ -1,9 +1,17 @@
 //! Opening topics: the only way a process reaches another, so every service is created with the QoS
 //! of [`crate::topics`]. An [`Outbox`] publishes and then notifies; an [`Inbox`] receives and exposes
 //! its listener so a process can block on it in a WaitSet.
+//!
+//! A topic of one publisher (`max_publishers = 1`: the thrusters' setpoints) is *exclusive*: an
+//! [`Outbox`] opened while another process publishes on it and is alive is refused with an error
+//! naming that process; the place of a publisher whose process died is freed first. Every topic's
+//! event service announces a publisher whose process died ([`PUBLISHER_DIED`]) once its leftovers
+//! are removed, so a consumer blocked on it learns of the death at once.
 
 use crate::payload::CameraFrameHeader;
 use crate::topics::{Endpoint, Topic};
+use iceoryx2::identifiers::UniqueNodeId;
+use iceoryx2::node::NodeView;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -41,6 +49,10 @@ fn service_name(service: &str) -> Result<ServiceName, PortError> {
     ServiceName::new(service).map_err(|e| fail(service, "invalid service name")(&e))
 }
 
+/// The event a topic's listeners receive when a publisher's process is found dead and its leftovers
+/// are removed (iceoryx2's `notifier_dead_event`); publishers notify with event 0.
+pub const PUBLISHER_DIED: usize = 254;
+
 fn open_event(
     node: &Node<Ipc>,
     service: &str,
@@ -51,6 +63,7 @@ fn open_event(
         .max_notifiers(qos.max_publishers)
         .max_listeners(qos.max_subscribers)
         .max_nodes(qos.max_nodes)
+        .notifier_dead_event(EventId::new(PUBLISHER_DIED))
         .open_or_create()
         .map_err(|e| fail(service, "cannot open the event service")(&e))
 }
@@ -65,6 +78,87 @@ pub fn open_listener(
         .listener_builder()
         .create()
         .map_err(|e| fail(service, "cannot create a listener")(&e))
+}
+
+/// The processes publishing on a topic, by the state of their iceoryx2 node.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Publishers {
+    /// The names of the live publishers' nodes (the process names).
+    pub alive: Vec<String>,
+    /// Publishers whose process died and whose leftovers are still registered.
+    pub dead: usize,
+}
+
+/// The states of the nodes of `publishers`; with `remove_dead`, the leftovers of the dead ones are
+/// removed (which frees their places and announces [`PUBLISHER_DIED`]).
+fn publisher_states(node: &Node<Ipc>, ids: &[UniqueNodeId], remove_dead: bool) -> Publishers {
+    let mut out = Publishers::default();
+    let _ = Node::<Ipc>::list(node.config(), |state| {
+        match state {
+            NodeState::Alive(view) if ids.contains(view.id()) => {
+                let name = view
+                    .details()
+                    .as_ref()
+                    .map(|d| d.name().to_string())
+                    .unwrap_or_else(|| "?".into());
+                out.alive.push(name);
+            }
+            NodeState::Dead(view) if ids.contains(view.id()) => {
+                out.dead += 1;
+                if remove_dead {
+                    let _ = view.try_remove_stale_resources();
+                }
+            }
+            _ => {}
+        }
+        CallbackProgression::Continue
+    });
+    out
+}
+
+/// The node ids of a topic's publishers.
+fn publisher_ids<P: Debug + ?Sized + IceoryxSend, H: Debug + ZeroCopySend>(
+    factory: &PortFactory<Ipc, P, H>,
+) -> Vec<UniqueNodeId> {
+    let mut ids = Vec::new();
+    factory.dynamic_config().list_publishers(|p| {
+        ids.push(p.node_id);
+        CallbackProgression::Continue
+    });
+    ids
+}
+
+/// Refuses a second live publisher on an exclusive topic (see the module docs), after freeing the
+/// place of a dead one.
+fn check_exclusive<P: Debug + ?Sized + IceoryxSend, H: Debug + ZeroCopySend>(
+    node: &Node<Ipc>,
+    service: &str,
+    q: &crate::Qos,
+    factory: &PortFactory<Ipc, P, H>,
+) -> Result<(), PortError> {
+    if q.max_publishers != 1 {
+        return Ok(());
+    }
+    let ids = publisher_ids(factory);
+    if ids.is_empty() {
+        return Ok(());
+    }
+    let found = publisher_states(node, &ids, true);
+    match found.alive.first() {
+        Some(who) => Err(exclusive(service, who)),
+        None => Ok(()),
+    }
+}
+
+fn exclusive(service: &str, who: &str) -> PortError {
+    PortError {
+        service: service.to_owned(),
+        what: "refused: one publisher at a time",
+        reason: format!(
+            "the live process `{who}` already publishes on it; this topic takes exactly one \
+             publisher (stop the other one first; the place of one that died is freed by itself)"
+        ),
+    }
 }
 
 /// Publishes one topic's messages and wakes its subscribers.
@@ -109,10 +203,18 @@ impl<P: Payload> Outbox<P> {
     ) -> Result<Self, PortError> {
         let q = &topic.qos;
         let factory = open_topic::<P>(node, service, q)?;
-        let publisher = factory
-            .publisher_builder()
-            .create()
-            .map_err(|e| fail(service, "cannot create a publisher")(&e))?;
+        check_exclusive(node, service, q, &factory)?;
+        let publisher = factory.publisher_builder().create().map_err(|e| {
+            match e {
+                // Two newcomers at once: the other one won.
+                iceoryx2::port::publisher::PublisherCreateError::ExceedsMaxSupportedPublishers
+                    if q.max_publishers == 1 =>
+                {
+                    exclusive(service, "another publisher")
+                }
+                e => fail(service, "cannot create a publisher")(&e),
+            }
+        })?;
         let notifier = open_event(node, service, q)?
             .notifier_builder()
             .create()
@@ -210,9 +312,35 @@ impl<P: Payload> Inbox<P> {
         self.factory.dynamic_config().number_of_publishers()
     }
 
+    /// The publishers' processes, alive or dead; the leftovers of dead ones are removed (their
+    /// listeners, this inbox's included, then receive [`PUBLISHER_DIED`]).
+    pub fn publisher_processes(&self, node: &Node<Ipc>) -> Publishers {
+        publisher_states(node, &publisher_ids(&self.factory), true)
+    }
+
     pub fn service(&self) -> &str {
         &self.service
     }
+}
+
+/// What a listener's pending notifications said: data arrived, and/or a publisher died.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Notified {
+    pub data: bool,
+    pub publisher_died: bool,
+}
+
+/// Consumes a listener's pending notifications (a WaitSet wakes again at once while any is left).
+pub fn take_notifications(listener: &Listener<Ipc>) -> Notified {
+    let mut n = Notified::default();
+    let _ = listener.try_wait(|a| {
+        if a.id.as_value() == PUBLISHER_DIED {
+            n.publisher_died = true;
+        } else {
+            n.data = true;
+        }
+    });
+    n
 }
 
 fn open_frames_service(
@@ -264,6 +392,7 @@ impl FrameOutbox {
         max_len: usize,
     ) -> Result<Self, PortError> {
         let factory = open_frames_service(node, service, topic)?;
+        check_exclusive(node, service, &topic.qos, &factory)?;
         let publisher = factory
             .publisher_builder()
             .initial_max_slice_len(max_len.max(1))

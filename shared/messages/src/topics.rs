@@ -136,7 +136,9 @@ pub fn command(dof: config::Dof) -> Topic<DofCommand> {
     }
 }
 
-/// Thruster setpoints: exactly one publisher (the allocator) may drive the thrusters.
+/// Thruster setpoints: exactly one publisher (the allocator) may drive the thrusters; a second one
+/// is refused while the first is alive (`ports`). A late subscriber still receives the last
+/// setpoints (history 1): the thruster driver judges their age and never acts on stale ones.
 pub const THRUSTER_SETPOINTS: Topic<ThrusterSetpoints> = Topic::new(
     "thruster_setpoints",
     Qos {
@@ -240,11 +242,12 @@ pub mod hardware {
     );
 
     /// The twin's thrusters: the setpoints written by the vehicle's thruster sink. As on the vehicle
-    /// endpoint, one process at a time drives the thrusters.
+    /// endpoint, one process at a time drives the thrusters. No history: thrusters that connect late
+    /// never receive old setpoints, however they judge them.
     pub const TWIN_THRUSTERS: Topic<ThrusterSetpoints> = Topic::new(
         "thrusters",
         Qos {
-            history: 1,
+            history: 0,
             buffer: 4,
             recorder_buffer: 4,
             max_publishers: 1,
@@ -288,6 +291,7 @@ mod tests {
             "cabletrack/twin/thrusters"
         );
         assert_eq!(hardware::TWIN_THRUSTERS.qos.max_publishers, 1);
+        assert_eq!(hardware::TWIN_THRUSTERS.qos.history, 0);
     }
 
     #[test]

@@ -85,6 +85,8 @@ pub enum RuntimeError {
     Iox(String),
     #[error(transparent)]
     Port(#[from] PortError),
+    #[error("vehicle clock: {0}")]
+    Clock(String),
 }
 
 /// A running service: its node, its configuration, its identity.
@@ -97,6 +99,7 @@ pub struct Runtime {
     learning: LearningParams,
     iox: IoxConfig,
     node: Node<ipc::Service>,
+    clock: crate::VehicleClock,
 }
 
 /// Sets up logging once per process: `RUST_LOG` (default `info`) filters, colours on a terminal only;
@@ -151,6 +154,13 @@ impl Runtime {
         let scenario: Scenario = config::load(&args.config.join("scenario.toml"))?;
         let learning: LearningParams = config::load(&args.config.join("learning.toml"))?;
         let iox = args.iox.config()?;
+        let clock = crate::VehicleClock::from_env()?;
+        if clock.offset_ns() != 0 {
+            tracing::warn!(
+                offset_ms = clock.offset_ns() / 1_000_000,
+                "this process's vehicle clock is offset from the machine's"
+            );
+        }
         remove_dead_nodes(&iox);
         let node = create_node(name, &iox)?;
         // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait; install it now, so a signal
@@ -165,7 +175,21 @@ impl Runtime {
             learning,
             iox,
             node,
+            clock,
         })
+    }
+
+    /// The vehicle clock: every stamp is taken and judged on it.
+    pub fn clock(&self) -> &crate::VehicleClock {
+        &self.clock
+    }
+
+    /// The judge of the stamps arriving on `input` (a topic name), with the control loop's limits.
+    pub fn screen(&self, input: impl Into<String>) -> crate::lockstep::Screen {
+        crate::lockstep::Screen::new(
+            input,
+            crate::lockstep::ScreenLimits::control(self.scenario.timing.sample_time_s),
+        )
     }
 
     pub fn name(&self) -> &'static str {
@@ -258,6 +282,32 @@ impl Runtime {
     ) -> anyhow::Result<Stopped> {
         crate::wait::serve(inputs, timer, on_wake)
     }
+
+    /// Serves one watched input, a watchdog's loop: wakes when `input` is notified (telling data
+    /// from a publisher's death), when nothing was notified on it for `deadline` (iceoryx2's
+    /// deadline attachment), every `tick`, and at the latest after the time `on_wake` returns (the
+    /// core's own deadline); until `on_wake` returns `None` or SIGINT/SIGTERM arrives.
+    pub fn serve_watched(
+        &self,
+        input: &iceoryx2::port::listener::Listener<ipc::Service>,
+        deadline: Duration,
+        tick: Duration,
+        on_wake: impl FnMut(crate::Watch) -> anyhow::Result<Option<Duration>>,
+    ) -> anyhow::Result<Stopped> {
+        crate::wait::serve_watched(input, deadline, tick, on_wake)
+    }
+}
+
+/// The environment variable in which the supervisor tells a restarted service how often it was
+/// restarted (absent or 0 at its first start).
+pub const RESTARTS_ENV: &str = "CABLETRACK_RESTARTS";
+
+/// How often this process's service was restarted (see [`RESTARTS_ENV`]).
+pub fn restarts() -> u32 {
+    std::env::var(RESTARTS_ENV)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0)
 }
 
 /// A node named `name` in the iceoryx2 namespace `iox` (for a program that is not a service, e.g. the

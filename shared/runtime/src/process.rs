@@ -284,6 +284,25 @@ impl Child {
         unsafe { libc::kill(pid, signal) == 0 }
     }
 
+    /// The pid of its child process named `name` (a supervisor's service), if it has one now.
+    pub fn child(&self, name: &str) -> Option<u32> {
+        self.pid()
+            .into_iter()
+            .flat_map(children)
+            .find(|(_, n)| is_named(n, name))
+            .map(|(p, _)| p)
+    }
+
+    /// Sends `signal` to its child process named `name` (a supervisor's service): only a live child
+    /// of a process of ours is ever signalled, never a process group. Returns the child's pid.
+    pub fn signal_child(&self, name: &str, signal: i32) -> Option<u32> {
+        let pid = self.child(name)?;
+        let pid = libc::pid_t::try_from(pid).ok().filter(|&p| p > 0)?;
+        // SAFETY: kill(2) on a process that is, as just read from /proc, a child of our own running
+        // (unreaped) child; a pid of 0 or below (a process group) is never passed.
+        (unsafe { libc::kill(pid, signal) } == 0).then_some(pid as u32)
+    }
+
     /// Its exit status, if it has exited (collected now or earlier).
     pub fn try_status(&mut self) -> Option<ExitStatus> {
         if self.status.is_none()
@@ -448,8 +467,15 @@ fn wait_readable(fds: &[Option<&OwnedFd>], timeout: Duration) {
     }
 }
 
+/// Whether a process's name as the kernel keeps it (`/proc/PID/comm`: at most 15 bytes) is `name`.
+pub fn is_named(comm: &str, name: &str) -> bool {
+    const COMM_LEN: usize = 15;
+    comm == name
+        || (name.len() > COMM_LEN && name.is_char_boundary(COMM_LEN) && comm == &name[..COMM_LEN])
+}
+
 /// The children of process `pid` (started by any of its threads), in pid order: (pid, program
-/// name), e.g. a supervisor's services.
+/// name as the kernel keeps it, at most 15 bytes: see [`is_named`]), e.g. a supervisor's services.
 pub fn children(pid: u32) -> Vec<(u32, String)> {
     let mut pids: Vec<u32> = std::fs::read_dir(format!("/proc/{pid}/task"))
         .into_iter()

@@ -78,7 +78,7 @@ pub struct ProcessUse {
 }
 
 /// The order processes are listed in: the loop's.
-const ORDER: [&str; 11] = [
+const ORDER: [&str; 12] = [
     "simulator",
     "vehicle-twin",
     "camera",
@@ -87,6 +87,7 @@ const ORDER: [&str; 11] = [
     "yaw-behaviour",
     "surge-controller",
     "thruster-allocator",
+    "thruster-driver",
     "monitor",
     "recorder",
     "supervisor",

@@ -324,7 +324,10 @@ impl TwinWorld {
                 .render(&mut self.image)
                 .expect("the image buffer has the camera's size");
         }
-        self.observer.observe(&header, &self.image).msg
+        self.observer
+            .observe(&header, &self.image)
+            .expect("the twin renders frames of the camera's size")
+            .msg
     }
 
     fn push_trace(&mut self, shot: &Shot, obs: Option<&model::CableObservation>, c: [f64; 3]) {

@@ -300,6 +300,12 @@ impl Twin {
         self.current.as_ref()
     }
 
+    /// The vehicle side stopped the thrusters (a failsafe stop, not an answer to a frame): they hold
+    /// 0 from now on, until setpoints come again.
+    pub fn stop_thrusters(&mut self) {
+        self.held.iter_mut().for_each(|h| *h = 0.0);
+    }
+
     /// Takes the first trial's first frame (again, if called twice: it restarts nothing).
     pub fn start(&mut self) -> Shot {
         if let Some(s) = self.current {

@@ -1,5 +1,12 @@
 //! The monitor's core: pairs the sway and yaw behaviours' episode reports into one record per
 //! episode (they arrive separately, in any order) and keeps the run's totals.
+//!
+//! A report that cannot be true (a return that is not finite or above 0: rewards are costs, a gain
+//! that is not finite) is refused ([`check`]). A monitor restarted mid-run resumes from the record
+//! it wrote ([`Episodes::resume`]), and a run with a report lost on the way (its behaviour or the
+//! monitor restarting as the episode ended) still ends: the run is done once its last episode is
+//! recorded, or reported by one behaviour while the other's report never came
+//! ([`Episodes::finished`]).
 
 use config::PerDof;
 use messages::LearningStats;
@@ -89,6 +96,9 @@ pub struct RunRecord {
     /// Step two: each behaviour's safety counts at the end of the run.
     #[serde(default)]
     pub safety: PerDof<SafetyCounts>,
+    /// Each record's episode number (a report lost on the way leaves a gap).
+    #[serde(default)]
+    pub episode_numbers: Vec<u32>,
 }
 
 impl RunRecord {
@@ -130,6 +140,20 @@ impl TracePoint {
             theta: o.observation.theta,
         }
     }
+}
+
+/// Why a report was refused.
+pub fn check(stats: &LearningStats) -> Result<(), String> {
+    if !(stats.episode_return.is_finite() && stats.episode_return <= 0.0) {
+        return Err(format!(
+            "return {} (a sum of costs: finite, at most 0)",
+            stats.episode_return
+        ));
+    }
+    if !stats.gain.iter().all(|g| g.is_finite()) {
+        return Err(format!("gain {:?} is not finite", stats.gain));
+    }
+    Ok(())
 }
 
 /// The evaluations among `episodes` (in order).
@@ -176,6 +200,84 @@ pub struct Episodes {
 impl Episodes {
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// The episodes of a record written before (a restarted monitor carries on from it). The record
+    /// holds the safety counts of its last episode only; the earlier ones read as 0.
+    pub fn resume(record: &RunRecord) -> Self {
+        let n = record.episodes;
+        let nan = PerDof {
+            sway: f64::NAN,
+            yaw: f64::NAN,
+        };
+        let done = (0..n)
+            .map(|k| {
+                let episode = record.episode_numbers.get(k).copied().unwrap_or(k as u32);
+                let closed = record.evaluations.iter().find(|e| e.trial == episode);
+                let or_nan = |v: Option<f64>| v.unwrap_or(f64::NAN);
+                EpisodeRecord {
+                    episode,
+                    steps: record.episode_steps.get(k).copied().unwrap_or(0),
+                    lost: record.lost.get(k).copied().unwrap_or(false),
+                    yaw: record.yaw.get(k).copied().unwrap_or(0.0),
+                    sway: record.sway.get(k).copied().unwrap_or(0.0),
+                    yaw_gain: record.yaw_gain.get(k).copied().unwrap_or([0.0; 2]),
+                    sway_gain: record.sway_gain.get(k).copied().unwrap_or([0.0; 2]),
+                    evaluation: record.evaluation.get(k).copied().unwrap_or(false),
+                    safety: if k + 1 == n {
+                        record.safety
+                    } else {
+                        PerDof::default()
+                    },
+                    evaluated: closed.map_or(nan, |e| PerDof {
+                        sway: or_nan(e.evaluated.sway),
+                        yaw: or_nan(e.evaluated.yaw),
+                    }),
+                    rolled_back: closed.map_or_else(PerDof::default, |e| e.rolled_back),
+                    // Where the best was restored, it is the return in force after the evaluation.
+                    best: closed.map_or(nan, |e| PerDof {
+                        sway: or_nan(e.in_force.sway),
+                        yaw: or_nan(e.in_force.yaw),
+                    }),
+                }
+            })
+            .collect();
+        Episodes {
+            pending: BTreeMap::new(),
+            done,
+        }
+    }
+
+    /// The run of `episodes` episodes (numbered from 0) is done: its last episode is recorded; or
+    /// one behaviour reported it and `lingered` (the time since that report) is long enough for the
+    /// other's to have come, had it not been lost.
+    pub fn finished(
+        &self,
+        episodes: u32,
+        lingered: Option<std::time::Duration>,
+        linger: std::time::Duration,
+    ) -> bool {
+        let Some(last) = episodes.checked_sub(1) else {
+            return false;
+        };
+        self.done.iter().any(|d| d.episode >= last)
+            || (self.pending.keys().any(|&e| e >= last) && lingered.is_some_and(|t| t >= linger))
+    }
+
+    /// Whether a report of an episode at or past `episode` is waiting for its pair.
+    pub fn pending_from(&self, episode: u32) -> bool {
+        self.pending.keys().any(|&e| e >= episode)
+    }
+
+    /// Episodes below the newest recorded one that have no record (their reports were lost).
+    pub fn gaps(&self) -> Vec<u32> {
+        let recorded: std::collections::BTreeSet<u32> =
+            self.done.iter().map(|d| d.episode).collect();
+        let Some(&newest) = recorded.iter().next_back() else {
+            return Vec::new();
+        };
+        let first = *recorded.iter().next().expect("not empty");
+        (first..newest).filter(|e| !recorded.contains(e)).collect()
     }
 
     /// Adds one behaviour's report; returns the episode's record once both reported it.
@@ -252,6 +354,7 @@ impl Episodes {
             yaw_gain: done.iter().map(|d| d.yaw_gain).collect(),
             sway_gain: done.iter().map(|d| d.sway_gain).collect(),
             safety: done.last().map_or_else(PerDof::default, |d| d.safety),
+            episode_numbers: done.iter().map(|d| d.episode).collect(),
         }
     }
 }
@@ -289,6 +392,59 @@ mod tests {
         let (yaw, sway) = rec.per_step(0..2).unwrap();
         assert!((yaw - -3.0 / 20.0).abs() < 1e-12 && (sway - -0.8 / 20.0).abs() < 1e-12);
         assert_eq!(rec.per_step(1..3), None, "out of range");
+        assert_eq!(rec.episode_numbers, vec![0, 1]);
+    }
+
+    #[test]
+    fn impossible_reports_are_refused() {
+        assert!(check(&stats(1, -2.0, false)).is_ok());
+        for bad in [f64::NAN, f64::INFINITY, 50.0] {
+            assert!(check(&stats(1, bad, false)).is_err(), "{bad}");
+        }
+        let mut s = stats(1, -2.0, false);
+        s.gain[1] = f64::NEG_INFINITY;
+        assert!(check(&s).is_err());
+    }
+
+    /// A restarted monitor resumes from its record; a lost report neither hangs the run nor
+    /// hides: the run ends on its last episode, and the gap is known.
+    #[test]
+    fn a_restarted_monitor_resumes_and_a_lost_report_does_not_hang_the_run() {
+        use std::time::Duration;
+        let linger = Duration::from_secs(10);
+        let mut e = Episodes::new();
+        for ep in 0..2 {
+            e.add(Dof::Sway, stats(ep, -0.5, false));
+            e.add(Dof::Yaw, stats(ep, -1.0, false));
+        }
+        let mut e = Episodes::resume(&e.record(1.0));
+        assert_eq!(e.done().len(), 2);
+        assert!(
+            e.add(Dof::Yaw, stats(1, -9.0, false)).is_none(),
+            "recorded before the restart"
+        );
+        // Episode 2's sway report was lost; episode 3 is the last of a run of 4.
+        e.add(Dof::Yaw, stats(2, -1.0, false));
+        e.add(Dof::Sway, stats(3, -0.5, false));
+        assert!(!e.finished(4, None, linger));
+        assert!(e.pending_from(3));
+        assert!(
+            !e.finished(4, Some(Duration::from_secs(1)), linger),
+            "its pair may still come"
+        );
+        assert!(
+            e.finished(4, Some(linger), linger),
+            "its pair was lost: the run ends"
+        );
+        e.add(Dof::Yaw, stats(3, -1.0, false));
+        assert!(e.finished(4, None, linger));
+        assert_eq!(e.gaps(), vec![2]);
+        assert!(
+            !e.finished(0, None, linger),
+            "0 episodes: run until stopped"
+        );
+        let rec = e.record(2.0);
+        assert_eq!(rec.episode_numbers, vec![0, 1, 3]);
     }
 
     /// Step two: evaluation trials, the evaluations they close (with the learning trials before

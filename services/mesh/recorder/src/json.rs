@@ -58,6 +58,10 @@ fn document(title: &str, description: &str, body: Value) -> Value {
 pub struct StampJson {
     pub seq: u64,
     pub time_ns: u64,
+    #[serde(default)]
+    pub clock_ns: u64,
+    #[serde(default)]
+    pub epoch: u32,
     pub episode: u32,
     pub step: u32,
     pub status: u8,
@@ -68,6 +72,8 @@ impl From<&Stamp> for StampJson {
         StampJson {
             seq: s.seq,
             time_ns: s.time_ns,
+            clock_ns: s.clock_ns,
+            epoch: s.epoch,
             episode: s.episode,
             step: s.step,
             status: s.status,
@@ -80,10 +86,12 @@ impl From<&StampJson> for Stamp {
         Stamp {
             seq: s.seq,
             time_ns: s.time_ns,
+            clock_ns: s.clock_ns,
+            epoch: s.epoch,
             episode: s.episode,
             step: s.step,
             status: s.status,
-            _reserved: [0; 7],
+            _reserved: [0; 3],
         }
     }
 }
@@ -92,6 +100,8 @@ fn stamp_schema() -> Value {
     object_schema(json!({
         "seq": int_schema("the control step's sequence number, increasing over the run"),
         "time_ns": int_schema("the step's time (ns): simulated time on the sim endpoint, the frame source's clock on the vehicle"),
+        "clock_ns": int_schema("the vehicle's monotonic clock (ns) when the frame was read (0 on the sim endpoint)"),
+        "epoch": int_schema("the producer's epoch: new at each start of the process"),
         "episode": int_schema("the episode (a trial on the vehicle), from 0"),
         "step": int_schema("the step within the episode, 0 at its start"),
         "status": {"type": "integer", "enum": [0, 1, 2], "description": "0 running, 1 cable lost, 2 time limit"},
@@ -340,6 +350,9 @@ pub struct SetpointsJson {
     pub values: Vec<Num>,
     pub missing: u32,
     pub scale: Num,
+    /// A failsafe stop's cause (0: the answer to a step).
+    #[serde(default)]
+    pub stop: u32,
 }
 
 impl From<&ThrusterSetpoints> for SetpointsJson {
@@ -349,6 +362,7 @@ impl From<&ThrusterSetpoints> for SetpointsJson {
             values: s.as_slice().iter().map(|&v| Num(v)).collect(),
             missing: s.missing,
             scale: Num(s.scale),
+            stop: s.stop,
         }
     }
 }
@@ -364,6 +378,8 @@ impl From<&SetpointsJson> for ThrusterSetpoints {
             stamp: (&j.stamp).into(),
             count: count as u32,
             missing: j.missing,
+            stop: j.stop,
+            _reserved: 0,
             values,
             scale: j.scale.0,
         }
@@ -379,6 +395,7 @@ pub fn setpoints_schema() -> Value {
             "values": {"type": "array", "items": num_schema("in [-1, 1]"), "maxItems": MAX_THRUSTERS},
             "missing": int_schema("bit k set: DOF k's command (0 surge, 1 sway, 2 yaw) missed its deadline and counted as 0"),
             "scale": num_schema("the factor applied to keep every setpoint within [-1, 1]"),
+            "stop": {"type": "integer", "enum": [0, 1, 2, 3, 4, 255], "description": "0 the answer to a step; a failsafe stop of the thrusters: 1 driver started, 2 deadline, 3 shutdown, 4 allocator dead, 255 unknown"},
         })),
     )
 }
@@ -745,6 +762,8 @@ mod tests {
                 stamp,
                 count: 3,
                 missing: 0b101,
+                stop: 2,
+                _reserved: 0,
                 values,
                 scale: 0.9,
             },

@@ -68,6 +68,7 @@ fn step(k: u64) -> Step {
             missing: 0,
             values,
             scale: 1.0,
+            ..Default::default()
         },
     }
 }

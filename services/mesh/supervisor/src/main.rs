@@ -192,6 +192,8 @@ fn start(s: &mut Service, env: &[(&str, String)], ready_pipe: bool) -> Result<Ch
         .name(&s.cmd.name)
         .args(&s.cmd.args)
         .envs(env.iter().map(|(k, v)| (k, v)))
+        // A restarted service may carry on from what it wrote (the monitor's record).
+        .env(runtime::RESTARTS_ENV, s.restarts.len().to_string())
         // If the supervisor itself is killed, its services get SIGTERM instead of running on as
         // orphans.
         .die_with_parent();
