@@ -111,13 +111,28 @@ struct Player {
     held: Option<(Played, Instant)>,
     played: BTreeSet<u64>,
     done: bool,
+    /// The replay is the camera of this mesh: a recorded vehicle frame goes out in the replay's own
+    /// epoch, read now on the vehicle clock (its consumers judge a stamp's age by that clock, and the
+    /// dive's clock readings are long past). `seq`, trial, step and time stay the recorded ones.
+    clock: runtime::VehicleClock,
+    epoch: u32,
+    /// The stamp the frame published last went out with (a re-send repeats it).
+    last_stamp: Option<messages::Stamp>,
 }
 
 impl Player {
     fn publish(&mut self, plant: &ReplayPlant, step: &Played) -> anyhow::Result<()> {
         let image = plant.image();
+        let mut header = step.header;
+        if header.stamp.is_timed() {
+            header.stamp = match self.last_stamp {
+                Some(s) if s.seq == header.stamp.seq => s,
+                _ => header.stamp.timed(self.epoch, self.clock.now_ns()),
+            };
+            self.last_stamp = Some(header.stamp);
+        }
         self.frames_out
-            .send_with(step.header, image.len(), |out| {
+            .send_with(header, image.len(), |out| {
                 out.copy_from_slice(image);
                 Ok::<_, std::convert::Infallible>(())
             })?
@@ -209,6 +224,9 @@ fn replay(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
         held: None,
         played: BTreeSet::new(),
         done: false,
+        clock: *rt.clock(),
+        epoch: rt.clock().new_epoch(),
+        last_stamp: None,
     };
     let limits = Limits::new(
         Duration::from_millis(args.resend_ms),
