@@ -172,3 +172,24 @@ fn a_bad_frame_is_refused_and_perception_goes_on() {
     assert_eq!(r.observation(1), good);
     assert!(r.perception.is_running());
 }
+
+/// A service stalled and resumed (SIGSTOP, SIGCONT: a debugger, a supervisor's stall check) goes on
+/// serving: the signal that wakes its blocked wait is not a request to stop; SIGTERM still is.
+#[test]
+fn a_stalled_and_resumed_service_goes_on_and_stops_on_sigterm() {
+    let ns = Namespace::new("pcsc");
+    let mut r = rig(&ns, "ideal");
+    let truth = CableObservationData {
+        found: 1,
+        x_g: 0.1,
+        confidence: 1.0,
+        ..Default::default()
+    };
+    r.send(header(1, 0, truth), &[]);
+    r.observation(1);
+    assert!(r.perception.signal(libc::SIGSTOP) && r.perception.signal(libc::SIGCONT));
+    r.send(header(2, 1, truth), &[]);
+    r.observation(2);
+    let status = r.perception.terminate(T);
+    assert!(status.success(), "{status:?}\n{}", r.perception.log());
+}

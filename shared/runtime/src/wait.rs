@@ -90,10 +90,10 @@ pub(crate) fn serve(
         }
         .map_err(|e| anyhow::anyhow!("waiting: {e:?}"))?;
         match result {
-            // A blocked wait sees a signal as Interrupt, the next one as TerminationRequest: both end.
-            WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => {
-                return Ok(Stopped::Signal);
-            }
+            WaitSetRunResult::TerminationRequest => return Ok(Stopped::Signal),
+            // Any signal interrupts a blocked wait (SIGCONT after a stall, SIGCHLD, ...). Wait
+            // again: a termination request is seen by the WaitSet before it blocks.
+            WaitSetRunResult::Interrupt => continue,
             WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
         }
         // Notifications are level-triggered: consume them, or the WaitSet wakes again at once. Data
@@ -161,11 +161,11 @@ pub(crate) fn serve_watched(
         let result = waitset
             .wait_and_process_once_with_timeout(&mut handle, next)
             .map_err(|e| anyhow::anyhow!("waiting: {e:?}"))?;
-        if matches!(
-            result,
-            WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt
-        ) {
-            return Ok(Stopped::Signal);
+        match result {
+            WaitSetRunResult::TerminationRequest => return Ok(Stopped::Signal),
+            // Not a request to stop (see `serve`): wait again.
+            WaitSetRunResult::Interrupt => continue,
+            WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
         }
         let wake = if notified {
             let n = messages::ports::take_notifications(input);
