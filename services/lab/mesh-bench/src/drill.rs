@@ -22,7 +22,7 @@
 //! processes left running, shared-memory files left, and trials missing from the monitor's record.
 
 use crate::probe;
-use crate::runs::spawn;
+use crate::runs::{brief_step_one, spawn};
 use anyhow::{Context, Result, bail};
 use iceoryx2::prelude::*;
 use messages::{
@@ -266,36 +266,15 @@ pub fn run(setup: &DrillSetup) -> Result<DrillReport> {
     let started = Instant::now();
     let ns = Namespace::new("fd");
     let scratch = ns.scratch();
-    let step_one = scratch.join("step-one");
-    let args = supervisor::command_line(
+    let step_one = brief_step_one(
+        &ns,
+        &setup.bin_dir,
         &setup.sim_mesh,
-        Some(&setup.config_dir),
+        &setup.config_dir,
         setup.seed,
-        &ns.iox,
-        &[
-            ("episodes", setup.sim_episodes.to_string()),
-            ("eyes", "ideal".into()),
-            ("state", step_one.display().to_string()),
-            ("json", step_one.join("run.json").display().to_string()),
-        ],
-    );
-    eprintln!(
-        "fault-drill: step one, {} episodes in simulation",
-        setup.sim_episodes
-    );
-    let mut sup = spawn(
-        "supervisor (step one)",
-        &setup.bin_dir.join("supervisor"),
-        &args,
-        &[],
-        scratch.join("step-one.log"),
+        setup.sim_episodes,
+        "fault-drill",
     )?;
-    if !sup
-        .wait_timeout(Duration::from_secs(600))
-        .is_some_and(|s| s.success())
-    {
-        bail!("step one failed\n{}", sup.tail(30));
-    }
 
     // The vehicle mesh, with many trials: the drill stops it when done.
     let offset_file = scratch.join("camera-clock-offset-ms");

@@ -40,6 +40,48 @@ pub fn spawn(
         .with_context(|| format!("starting {}", program.display()))
 }
 
+/// Runs step one in simulation, briefly and with ideal perception, in `ns`: the policy a vehicle run
+/// starts from (a policy, not a good one). Returns the directory of its checkpoints.
+pub fn brief_step_one(
+    ns: &Namespace,
+    bin_dir: &Path,
+    sim_mesh: &Path,
+    config_dir: &Path,
+    seed: u64,
+    episodes: u32,
+    who: &str,
+) -> Result<PathBuf> {
+    let scratch = ns.scratch();
+    let step_one = scratch.join("step-one");
+    let args = supervisor::command_line(
+        sim_mesh,
+        Some(config_dir),
+        seed,
+        &ns.iox,
+        &[
+            ("episodes", episodes.to_string()),
+            ("eyes", "ideal".into()),
+            ("state", step_one.display().to_string()),
+            ("json", step_one.join("run.json").display().to_string()),
+        ],
+    );
+    eprintln!("{who}: step one, {episodes} episodes in simulation");
+    let mut sup = spawn(
+        "supervisor (step one)",
+        &bin_dir.join("supervisor"),
+        &args,
+        &[],
+        scratch.join("step-one.log"),
+    )?;
+    if !sup
+        .wait_timeout(Duration::from_secs(600))
+        .is_some_and(|s| s.success())
+    {
+        bail!("step one failed\n{}", sup.tail(30));
+    }
+    Ok(step_one)
+}
+
 /// One reading while a run goes on: the step the loop is at and its processes.
 #[derive(Clone, Debug)]
 pub struct Tick {

@@ -9,7 +9,7 @@
 //! included. Meanwhile the bench reads each process in `/proc` every [`TICK`].
 
 use crate::procfs;
-use crate::runs::{ProcessUse, Tick, spawn, usage};
+use crate::runs::{ProcessUse, Tick, brief_step_one, spawn, usage};
 use crate::stats::{Summary, now_ns};
 use anyhow::{Context, Result, bail};
 use runtime::Namespace;
@@ -76,36 +76,15 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     let ns = Namespace::new("v");
     let scratch = ns.scratch();
     // Step one: the policy the vehicle starts from.
-    let step_one = scratch.join("step-one");
-    let args = supervisor::command_line(
+    let step_one = brief_step_one(
+        &ns,
+        &setup.bin_dir,
         &setup.sim_mesh,
-        Some(&setup.config_dir),
+        &setup.config_dir,
         setup.seed,
-        &ns.iox,
-        &[
-            ("episodes", setup.sim_episodes.to_string()),
-            ("eyes", "ideal".into()),
-            ("state", step_one.display().to_string()),
-            ("json", step_one.join("run.json").display().to_string()),
-        ],
-    );
-    eprintln!(
-        "mesh-bench: vehicle: step one, {} episodes in simulation",
-        setup.sim_episodes
-    );
-    let mut sup = spawn(
-        "supervisor (step one)",
-        &setup.bin_dir.join("supervisor"),
-        &args,
-        &[],
-        scratch.join("step-one.log"),
+        setup.sim_episodes,
+        "mesh-bench: vehicle",
     )?;
-    if !sup
-        .wait_timeout(Duration::from_secs(600))
-        .is_some_and(|s| s.success())
-    {
-        bail!("step one failed\n{}", sup.tail(30));
-    }
 
     // Step two on the twin, at the vehicle's pace.
     let trials = setup.trials();
