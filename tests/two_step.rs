@@ -1,69 +1,76 @@
 //! The main job, `scripts/two-step-learning`, end to end on the service mesh: step one in simulation
-//! (every service a process), the transfer, step two on the vehicle twin (the vehicle endpoint: the
-//! camera's twin frame source, the allocator's twin thruster sink, the supervisor with
-//! `config/vehicle.toml`), and the report.
+//! (every service a process), the twin's limit, the evaluations through the vehicle mesh (the camera's
+//! twin frame source, the allocator's twin thruster sink, the supervisor with `config/vehicle.toml`),
+//! step two with its evaluations and safety layer, and the report.
 //!
-//! Paper section IV-B, as tests: the simulation policy keeps the cable in view on the twin but does
-//! worse there than in simulation (the twin with its reality gap off, `config/twin-ideal.toml`, from
-//! the same starts); online learning improves it (the last five trials against the first five: the
-//! twin's trials cycle through five start poses, so they compare). And the vehicle mesh runs the very
-//! algorithm of the in-process step two (`trainer::twin_world::TwinWorld`): the same trials' returns.
-//!
-//! Seed 10 and step one with ideal perception keep the test well under a minute; the seed is one of
-//! the 12 of the calibration table in `services/lab/vehicle-twin/README.md` (learning improves yaw in 10
-//! of them, sway in 11).
+//! What this test shows is that the pieces fit and agree, not how well step two learns (that needs
+//! many seeds, and runs in one process: `services/lab/trainer/tests/step_two.rs` and the README's
+//! benchmark). The run record, `summary.json` and the report hold what they must; and the vehicle mesh
+//! runs the very algorithm of the in-process step two (`trainer::twin_world::TwinWorld`): the same
+//! session trial for trial, and the same evaluated returns for the simulation policy, the twin's
+//! limit and the policy step two ended with. A short run (5 learning trials, a one-generation limit
+//! search, step one with ideal perception) keeps it to a minute or two.
 
 use config::Eyes;
-use config::{Dof, Scenario, TwinParams};
-use learning::Checkpoint;
+use config::{Dof, PerDof, Scenario, TwinParams};
 use monitor::RunRecord;
+use runtime::process::Spawn;
 use std::path::Path;
-use std::process::Command;
-use trainer::twin_world::TwinWorld;
+use std::time::Duration;
+use trainer::evaluation::{evaluate, load_policies};
+use trainer::twin_world::{Mode, TwinWorld};
 
-const SEED: u64 = 10;
-const TRIALS: usize = 20;
+/// The job's seed: the script's default (nothing here depends on how well a seed learns).
+const SEED: u64 = 1;
+const LEARNING_TRIALS: usize = 5;
+/// The whole job takes about a minute on a quiet 2-core machine; ten leave room for a loaded one.
+const TIMEOUT: Duration = Duration::from_secs(600);
 
 fn read(path: &Path) -> RunRecord {
     let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
-fn mean(v: &[f64]) -> f64 {
-    stats::mean(v.iter().copied())
-}
-
-fn returns(r: &RunRecord, dof: Dof) -> &[f64] {
-    match dof {
-        Dof::Yaw => &r.yaw,
-        Dof::Sway => &r.sway,
-    }
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-9 * (1.0 + b.abs())
 }
 
 #[test]
-fn two_step_learning_transfers_the_simulation_policy_and_improves_it_on_the_vehicle() {
+fn the_two_step_job_runs_and_the_mesh_agrees_with_the_in_process_step_two() {
     let repo = testkit::config_dir().parent().unwrap().to_owned();
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("two-step");
-    let run = Command::new(repo.join("scripts/two-step-learning"))
-        .current_dir(&repo)
+    let log = tmp.path().join("two-step-learning.log");
+    let mut job = Spawn::new(repo.join("scripts/two-step-learning"))
         .args(["--no-build", "--seed", &SEED.to_string(), "--trials"])
-        .arg(TRIALS.to_string())
+        .arg(LEARNING_TRIALS.to_string())
         .args([
-            "--eval-trials",
-            "5",
+            "--sim-episodes",
+            "30",
             "--fig5-runs",
             "2",
             "--sim-eyes",
             "ideal",
+            "--limit-generations",
+            "1",
+            "--limit-population",
+            "4",
             "--out",
         ])
         .arg(&out)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&run.stdout);
-    let stderr = String::from_utf8_lossy(&run.stderr);
-    assert!(run.status.success(), "{stdout}\n{stderr}");
+        .log(&log)
+        .die_with_parent()
+        .start()
+        .expect("starting scripts/two-step-learning");
+    let status = job.wait_timeout(TIMEOUT).unwrap_or_else(|| {
+        job.kill();
+        panic!(
+            "two-step-learning did not finish within {TIMEOUT:?}\n{}",
+            job.tail(30)
+        )
+    });
+    let stdout = job.log();
+    assert!(status.success(), "{status:?}\n{stdout}");
     let report = out.join("report/report.md");
     assert!(
         stdout.contains(&report.display().to_string()),
@@ -77,6 +84,7 @@ fn two_step_learning_transfers_the_simulation_policy_and_improves_it_on_the_vehi
         "step-one.png",
         "policy-sim.png",
         "twin-sim-policy.png",
+        "step-two-evaluations.png",
         "step-two-traces.png",
         "step-two-returns.png",
         "policy-vehicle.png",
@@ -88,80 +96,96 @@ fn two_step_learning_transfers_the_simulation_policy_and_improves_it_on_the_vehi
             "{png}"
         );
     }
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
-    for (part, n) in [("sim", 100), ("vehicle", TRIALS)] {
-        for dof in ["yaw", "sway"] {
-            let v = summary[part][dof]
-                .as_array()
-                .unwrap_or_else(|| panic!("{part}.{dof}"));
-            assert_eq!(v.len(), n, "{part}.{dof}");
-            assert!(v.iter().all(|x| x.as_f64().is_some_and(f64::is_finite)));
-        }
-    }
-
-    // The transfer: the cable stays in view on the twin, but each DOF costs more per step there than
-    // in simulation from the same starts (by 10% at least).
-    let in_sim = read(&out.join("eval-sim/run.json"));
-    let on_twin = read(&out.join("eval/run.json"));
-    assert_eq!((in_sim.episodes, on_twin.episodes), (5, 5));
-    assert!(on_twin.lost.iter().all(|l| !l), "{:?}", on_twin.lost);
-    assert!(
-        on_twin.episode_steps.iter().all(|&s| s > 400),
-        "{:?}",
-        on_twin.episode_steps
-    );
-    let (sim_step, twin_step) = (
-        in_sim.per_step(0..5).unwrap(),
-        on_twin.per_step(0..5).unwrap(),
-    );
-    assert!(
-        twin_step.0 < 1.1 * sim_step.0,
-        "yaw per step: twin {} sim {}",
-        twin_step.0,
-        sim_step.0
-    );
-    assert!(
-        twin_step.1 < 1.1 * sim_step.1,
-        "sway per step: twin {} sim {}",
-        twin_step.1,
-        sim_step.1
-    );
-
-    // Step two: learning online improves on the simulation policy, in both DOFs, and never loses the
-    // cable.
-    let vehicle = read(&out.join("step-two/run.json"));
-    assert_eq!(vehicle.episodes, TRIALS);
-    assert!(vehicle.lost.iter().all(|l| !l), "{:?}", vehicle.lost);
-    for dof in Dof::ALL {
-        let r = returns(&vehicle, dof);
-        let (first, last) = (mean(&r[..5]), mean(&r[TRIALS - 5..]));
-        eprintln!("{dof}: first five trials {first:.3}, last five {last:.3}");
+    for ckpt in ["sway.ckpt", "yaw.ckpt", "limit.json"] {
         assert!(
-            last > 0.8 * first,
-            "{dof}: last five {last} vs first five {first}"
+            out.join("twin-limit").join(ckpt).is_file(),
+            "twin-limit/{ckpt}"
         );
     }
+    // Step two's flight record: whole (no part cut), every frame with its image, its estimate and
+    // its answer, and every trial's episode report of both learners.
+    let mut per_topic = std::collections::BTreeMap::new();
+    let flight = recorder::read(&out.join("step-two.mcap"), |m| {
+        *per_topic.entry(m.channel).or_insert(0u64) += 1;
+    })
+    .unwrap();
+    assert!(flight.cut.is_empty(), "{:?}", flight.cut);
+    use recorder::Channel as C;
+    let frames = per_topic[&C::FrameHeader];
+    for c in [C::Image, C::Observation, C::Annotation, C::Setpoints] {
+        assert_eq!(per_topic[&c], frames, "{c:?}: {per_topic:?}");
+    }
+    let session_trials = read(&out.join("step-two/run.json")).episodes as u64;
+    for c in [C::SwayLearning, C::YawLearning] {
+        assert_eq!(per_topic[&c], session_trials, "{c:?}: {per_topic:?}");
+    }
 
-    // Two compositions, one algorithm: the same step two in one process, from the mesh's step-one
-    // checkpoints, gives the mesh's returns trial for trial.
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let number = |v: &serde_json::Value, what: &str| {
+        v.as_f64()
+            .filter(|x| x.is_finite())
+            .unwrap_or_else(|| panic!("summary.json {what}: {v}"))
+    };
+    for dof in ["yaw", "sway"] {
+        number(&summary["twin_limit"][dof], &format!("twin_limit.{dof}"));
+        number(&summary["gap_closed"][dof], &format!("gap_closed.{dof}"));
+        for part in ["sim_policy", "after"] {
+            number(
+                &summary["evaluation"][part][dof],
+                &format!("evaluation.{part}.{dof}"),
+            );
+        }
+    }
+    let e = summary["evaluation"]["trials"].as_u64().unwrap() as u32;
+    // Evaluations before learning and after the learning trials.
+    let curve = summary["evaluation"]["curve"].as_array().unwrap();
+    assert_eq!(curve.len(), LEARNING_TRIALS / 5 + 1, "{curve:?}");
+
+    // One algorithm, two compositions: the in-process step two from the mesh's step-one checkpoints
+    // gives the mesh's session trial for trial ...
     let dir = testkit::config_dir();
     let scenario: Scenario = config::load(&dir.join("scenario.toml")).unwrap();
     let twin: TwinParams = config::load(&dir.join("twin.toml")).unwrap();
-    let step_one = out.join("step-one");
-    let mut checkpoint =
-        Checkpoint::single(Checkpoint::load_dof(&step_one.join("sway.ckpt"), Dof::Sway).unwrap());
-    checkpoint.insert(Checkpoint::load_dof(&step_one.join("yaw.ckpt"), Dof::Yaw).unwrap());
+    let step_one = load_policies(&out.join("step-one")).unwrap();
+    let session = read(&out.join("step-two/run.json"));
+    assert!(session.lost.iter().all(|l| !l), "{:?}", session.lost);
     let mut world =
-        TwinWorld::from_checkpoint(&scenario, &twin, &checkpoint, Eyes::Images, SEED).unwrap();
-    for (t, (yaw, sway)) in vehicle.yaw.iter().zip(&vehicle.sway).enumerate() {
+        TwinWorld::from_checkpoint(&scenario, &twin, &step_one, Eyes::Images, SEED, Mode::Learn)
+            .unwrap();
+    for (t, (yaw, sway)) in session.yaw.iter().zip(&session.sway).enumerate() {
         let r = world.run_trial();
-        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * (1.0 + b.abs());
         assert!(
             close(r.returns.yaw, *yaw) && close(r.returns.sway, *sway),
             "trial {t}: in one process yaw {} sway {}, the mesh yaw {yaw} sway {sway}",
             r.returns.yaw,
             r.returns.sway
         );
+        assert_eq!(r.evaluation, session.evaluation[t], "trial {t}");
+    }
+
+    // ... and the policies in DIR/step-one, DIR/twin-limit and DIR/step-two, evaluated by the
+    // protocol in one process, give the returns the summary states from the vehicle mesh.
+    for (policies, part) in [
+        ("step-one", "sim_policy"),
+        ("twin-limit", "limit"),
+        ("step-two", "after"),
+    ] {
+        let c = load_policies(&out.join(policies)).unwrap();
+        let j = evaluate(&scenario, &twin, Eyes::Images, &c, SEED, e)
+            .unwrap()
+            .mean();
+        let stated = PerDof {
+            sway: number(&summary["evaluation"][part]["sway"], part),
+            yaw: number(&summary["evaluation"][part]["yaw"], part),
+        };
+        for dof in Dof::ALL {
+            assert!(
+                close(*j.get(dof), *stated.get(dof)),
+                "{policies} {dof}: in one process {}, the mesh {}",
+                j.get(dof),
+                stated.get(dof)
+            );
+        }
     }
 }

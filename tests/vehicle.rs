@@ -3,37 +3,15 @@
 //! checkpoint (the policy's K and the counters exactly as saved, not the step-one policy), and the
 //! loop goes on; SIGTERM to the supervisor then leaves no process and no shared-memory file.
 
-use config::{Dof, LearningParams, Scenario};
-use learning::{Algorithm, Checkpoint};
+use config::Dof;
 use messages::{Endpoint, topics};
 use std::path::Path;
 use std::time::Duration;
+use system_tests::step_one;
 use testkit::Namespace;
-use trainer::Perceiver;
-use trainer::world::World;
 
 const T: Duration = Duration::from_secs(40);
 const STEP_ONE_EPISODES: u64 = 10;
-
-/// A short step one in one process, saved as the mesh's behaviours save theirs (one file per DOF).
-fn step_one(dir: &Path) {
-    let config = testkit::config_dir();
-    let scenario: Scenario = config::load(&config.join("scenario.toml")).unwrap();
-    let learning: LearningParams = config::load(&config.join("learning.toml")).unwrap();
-    let eyes = Perceiver::Ideal(scenario.observation.clone());
-    let mut world = World::new(&scenario, &learning, Algorithm::Nac, eyes, 4);
-    for _ in 0..STEP_ONE_EPISODES {
-        world.run_episode();
-    }
-    let agents = world.into_agents();
-    std::fs::create_dir_all(dir).unwrap();
-    Checkpoint::single(agents.sway.checkpoint())
-        .save(&dir.join("sway.ckpt"))
-        .unwrap();
-    Checkpoint::single(agents.yaw.checkpoint())
-        .save(&dir.join("yaw.ckpt"))
-        .unwrap();
-}
 
 /// What a "checkpoint saved" or "checkpoint loaded" log line says: K and the counters.
 #[derive(Debug, PartialEq)]
@@ -72,7 +50,7 @@ fn a_behaviour_killed_mid_learning_on_the_vehicle_resumes_from_its_last_checkpoi
     let ns = Namespace::new("veh");
     let dir = tempfile::tempdir().unwrap();
     let (initial, state) = (dir.path().join("step-one"), dir.path().join("state"));
-    step_one(&initial);
+    step_one(&initial, STEP_ONE_EPISODES, 4);
     let probe = testkit::probe(&ns, Endpoint::Vehicle);
     let reports = probe.inbox(&topics::learning(Dof::Sway));
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
@@ -89,6 +67,7 @@ fn a_behaviour_killed_mid_learning_on_the_vehicle_resumes_from_its_last_checkpoi
             ("state", path(&state)),
             ("json", path(&dir.path().join("run.json"))),
             ("trace", path(&dir.path().join("trace.jsonl"))),
+            ("record", path(&dir.path().join("flight.mcap"))),
         ],
     );
 

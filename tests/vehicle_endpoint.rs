@@ -1,6 +1,7 @@
 //! The vehicle endpoint over the twin, as processes: the twin's frame reaches perception's topic
-//! through the camera (its twin frame source) with the twin's metadata, and the setpoints of the
-//! allocator (its twin thruster sink) reach the twin, which integrates exactly them.
+//! through the camera (its twin frame source) with the twin's metadata and the camera's epoch and
+//! clock, and the allocator's setpoints reach the twin through the thruster driver (its twin
+//! thruster sink), and the twin integrates exactly them.
 
 use config::{Scenario, TwinParams};
 use messages::{DofCommand, Endpoint, StepStatus, topics};
@@ -37,9 +38,10 @@ fn twin_frames_reach_perception_and_the_allocators_setpoints_reach_the_twin() {
     let twin = vehicle("vehicle-twin", &["--lockstep", "--resend-ms", "50"]);
     let camera = vehicle("camera", &["--source", "twin"]);
     let perception = vehicle("perception", &["--eyes", "ideal"]);
-    let allocator = vehicle("thruster-allocator", &["--sink", "twin"]);
+    let driver = vehicle("thruster-driver", &["--sink", "twin"]);
+    let allocator = vehicle("thruster-allocator", &[]);
     let logs = || {
-        [&twin, &camera, &perception, &allocator]
+        [&twin, &camera, &perception, &driver, &allocator]
             .iter()
             .map(|p| p.log())
             .collect::<Vec<_>>()
@@ -71,6 +73,10 @@ fn twin_frames_reach_perception_and_the_allocators_setpoints_reach_the_twin() {
             "ideal perception passes the twin's truth"
         );
         assert!(obs.stamp.seq > last_seq, "the camera's seq grows");
+        assert!(
+            obs.stamp.is_timed() && obs.stamp.epoch != 0,
+            "stamped on the vehicle clock in the camera's epoch"
+        );
         assert_eq!(want.status, StepStatus::Running);
         last_seq = obs.stamp.seq;
 

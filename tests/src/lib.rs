@@ -1,10 +1,14 @@
 //! The harness of the system tests: runs the service mesh (`config/sim-mesh.toml`, through the real
 //! `supervisor`) in a test's own iceoryx2 namespace and reads back what it recorded.
 
+use config::{LearningParams, Scenario};
+use learning::{Algorithm, Checkpoint};
 use messages::{CableObservationMsg, Endpoint, topics};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use testkit::Namespace;
+use trainer::Perceiver;
+use trainer::world::World;
 
 /// What the monitor recorded of a run (`scripts/sim-mesh --json`).
 pub use monitor::RunRecord;
@@ -114,4 +118,25 @@ fn seen_of(o: &CableObservationMsg) -> Seen {
 /// The mean of `values`.
 pub fn mean(values: &[f64]) -> f64 {
     stats::mean(values.iter().copied())
+}
+
+/// A short step one in one process (`episodes` episodes, ideal perception, `seed`), saved as the
+/// mesh's behaviours save theirs: `DIR/sway.ckpt` and `DIR/yaw.ckpt`.
+pub fn step_one(dir: &Path, episodes: u64, seed: u64) {
+    let config = testkit::config_dir();
+    let scenario: Scenario = config::load(&config.join("scenario.toml")).unwrap();
+    let learning: LearningParams = config::load(&config.join("learning.toml")).unwrap();
+    let eyes = Perceiver::Ideal(scenario.observation.clone());
+    let mut world = World::new(&scenario, &learning, Algorithm::Nac, eyes, seed);
+    for _ in 0..episodes {
+        world.run_episode();
+    }
+    let agents = world.into_agents();
+    std::fs::create_dir_all(dir).unwrap();
+    Checkpoint::single(agents.sway.checkpoint())
+        .save(&dir.join("sway.ckpt"))
+        .unwrap();
+    Checkpoint::single(agents.yaw.checkpoint())
+        .save(&dir.join("yaw.ckpt"))
+        .unwrap();
 }

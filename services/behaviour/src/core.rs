@@ -5,9 +5,15 @@
 //! (action 0, nothing learned); otherwise the agent steps on the DOF's state with the step's status.
 //! The answer is the DOF's command for that step and, when the step ended an episode, the episode's
 //! learning statistics.
+//!
+//! A behaviour built [`Behaviour::for_step_two`] runs step two's protocol on top (see
+//! [`crate::step_two`]): each trial is a learning or an evaluation trial, every actor update passes
+//! the safety guard, and each evaluation is judged against the best policy so far.
 
+use crate::step_two::{StepTwo, TrialKind, guard};
 use config::{Dof, LearningParams, Scenario};
-use learning::{Agent, AgentState, Algorithm, EpisodeSummary};
+use learning::lqr::LqrError;
+use learning::{Agent, AgentState, Algorithm, EpisodeSummary, Verdict};
 use messages::{CableObservationMsg, DofCommand, LearningStats, Stamp, StepStatus};
 use model::CableObservation;
 
@@ -58,17 +64,24 @@ pub fn behave(
     (step.action, step.episode)
 }
 
-/// The statistics message of a finished episode.
-pub fn learning_stats(stamp: Stamp, episode: &EpisodeSummary, learning: bool) -> LearningStats {
+/// The statistics message of a finished episode of `agent` (its gain and counts as they are now).
+pub fn learning_stats(stamp: Stamp, episode: &EpisodeSummary, agent: &Agent) -> LearningStats {
+    let safety = agent.safety();
     LearningStats {
         stamp,
         episode_return: episode.return_,
-        gain: episode.gain,
+        gain: agent.gain(),
         actor_updates: episode.actor_updates,
         steps: episode.steps,
         failed: episode.failed as u8,
-        learning: learning as u8,
-        _reserved: [0; 2],
+        learning: agent.is_learning() as u8,
+        evaluation: 0,
+        rolled_back: 0,
+        bounded: safety.bounded,
+        refused: safety.refused,
+        rollbacks: safety.rollbacks,
+        evaluated: f64::NAN,
+        best_evaluated: safety.best.map_or(f64::NAN, |b| b.evaluated),
     }
 }
 
@@ -87,11 +100,47 @@ pub struct Behaviour {
     agent: Agent,
     /// The episode of the last observation, and whether that observation ended it.
     last: Option<(u32, bool)>,
+    /// Step two's protocol, when the behaviour runs it.
+    step_two: Option<StepTwo>,
+    /// What the current trial is for (step two).
+    kind: TrialKind,
 }
 
 impl Behaviour {
     pub fn new(agent: Agent) -> Self {
-        Behaviour { agent, last: None }
+        Behaviour {
+            agent,
+            last: None,
+            step_two: None,
+            kind: TrialKind::Learning,
+        }
+    }
+
+    /// A behaviour running step two's protocol `step_two`, with the safety guard of the agent's own
+    /// learning parameters for `scenario`'s identified model.
+    pub fn for_step_two(
+        mut agent: Agent,
+        step_two: StepTwo,
+        scenario: &Scenario,
+    ) -> Result<Self, LqrError> {
+        agent.set_guard(guard(scenario, agent.params(), agent.dof())?);
+        agent.set_learning(step_two.learning);
+        Ok(Behaviour {
+            agent,
+            last: None,
+            step_two: Some(step_two),
+            kind: TrialKind::Learning,
+        })
+    }
+
+    /// Step two's protocol, if the behaviour runs it.
+    pub fn step_two(&self) -> Option<&StepTwo> {
+        self.step_two.as_ref()
+    }
+
+    /// What the current trial is for.
+    pub fn trial_kind(&self) -> TrialKind {
+        self.kind
     }
 
     pub fn dof(&self) -> Dof {
@@ -132,6 +181,12 @@ impl Behaviour {
                 "a new episode began before the last one ended: the last one is aborted, its pending step not learned"
             );
         }
+        let new_trial = self
+            .last
+            .is_none_or(|(e, ended)| ended || e != msg.stamp.episode);
+        if new_trial {
+            self.begin_trial(msg.stamp.episode);
+        }
         self.last = Some((msg.stamp.episode, status.is_terminal()));
         let (action, episode) = behave(&mut self.agent, &msg.observation(), status);
         Output {
@@ -139,7 +194,92 @@ impl Behaviour {
                 stamp: msg.stamp,
                 value: action,
             },
-            stats: episode.map(|e| learning_stats(msg.stamp, &e, self.agent.is_learning())),
+            stats: episode.map(|e| self.end_trial(msg.stamp, &e)),
+        }
+    }
+
+    /// Step two: sets the agent up for trial `trial` (learning or not, its exploration noise).
+    fn begin_trial(&mut self, trial: u32) {
+        let Some(s) = &self.step_two else { return };
+        self.kind = s.kind(trial);
+        let seed = s.noise_seed(trial, self.kind);
+        let learning = s.learning && !self.kind.is_evaluation();
+        if self.kind == (TrialKind::Evaluation { slot: 0 }) {
+            // A new evaluation: whatever an earlier, unfinished one summed is not part of it.
+            let safety = self.agent.safety_mut();
+            (safety.evaluation_sum, safety.evaluation_trials) = (0.0, 0);
+        }
+        self.agent.set_learning(learning);
+        self.agent.reseed(seed);
+    }
+
+    /// The statistics of a finished trial; step two: an evaluation trial counts towards its
+    /// evaluation, and the last one has it judged (and maybe the best policy restored).
+    fn end_trial(&mut self, stamp: Stamp, episode: &EpisodeSummary) -> LearningStats {
+        let TrialKind::Evaluation { slot } = self.kind else {
+            return learning_stats(stamp, episode, &self.agent);
+        };
+        let s = self.step_two.as_ref().expect("evaluations are step two's");
+        let (closes, judge, wanted) = (s.closes(slot), s.keep_best, s.evaluation.trials);
+        let safety = self.agent.safety_mut();
+        safety.evaluation_sum += episode.return_;
+        safety.evaluation_trials += 1;
+        let (mut evaluated, mut rolled_back) = (f64::NAN, false);
+        if closes {
+            let (sum, n) = (safety.evaluation_sum, safety.evaluation_trials);
+            (safety.evaluation_sum, safety.evaluation_trials) = (0.0, 0);
+            if n == wanted {
+                evaluated = sum / n as f64;
+                rolled_back = self.judge(judge, evaluated, stamp.episode);
+            } else {
+                tracing::warn!(
+                    dof = %self.dof(),
+                    trial = stamp.episode,
+                    trials = n,
+                    wanted,
+                    "an evaluation missed some of its trials: not judged"
+                );
+            }
+        }
+        let mut stats = learning_stats(stamp, episode, &self.agent);
+        stats.evaluation = 1;
+        stats.rolled_back = rolled_back as u8;
+        stats.evaluated = evaluated;
+        stats
+    }
+
+    /// Judges the policy evaluated at `evaluated`; returns whether the best one was restored.
+    fn judge(&mut self, judge: learning::KeepBest, evaluated: f64, trial: u32) -> bool {
+        let gain = self.agent.gain();
+        match judge.judge(self.agent.safety_mut(), gain, evaluated) {
+            Verdict::Best => {
+                tracing::info!(dof = %self.dof(), trial, ?gain, evaluated, "evaluation: the best policy so far");
+                false
+            }
+            Verdict::Kept { best } => {
+                tracing::info!(
+                    dof = %self.dof(),
+                    trial,
+                    ?gain,
+                    evaluated,
+                    best = best.evaluated,
+                    "evaluation: not better than the best, within the tolerance"
+                );
+                false
+            }
+            Verdict::RollBack { best } => {
+                tracing::warn!(
+                    dof = %self.dof(),
+                    trial,
+                    ?gain,
+                    evaluated,
+                    best = best.evaluated,
+                    best_gain = ?best.gain,
+                    "evaluation: worse than the best policy beyond the tolerance; the best is restored"
+                );
+                self.agent.restore(best.gain);
+                true
+            }
         }
     }
 }

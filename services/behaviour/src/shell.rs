@@ -6,15 +6,18 @@
 //! agent. Then it serves its observations in lockstep (`Runtime::serve_steps`: each new `seq` once; a
 //! repeated `seq` gets the command already computed, the agent is not stepped twice). While learning, the
 //! checkpoint is saved every `--save-every` episodes and when SIGINT or SIGTERM stops the process.
+//! With `--step-two` (the vehicle mesh) it runs step two's protocol ([`crate::step_two`]).
 
 use crate::core::{Behaviour, new_agent, resume_seed};
+use crate::step_two::StepTwo;
 use crate::store::{CheckpointFile, chain};
 use anyhow::{Context, bail};
 use clap::{CommandFactory, FromArgMatches, Parser};
 use config::Dof;
 use learning::{Agent, AgentState, Algorithm, Checkpoint, LearnerState};
+use messages::CableObservationMsg;
 use messages::topics;
-use runtime::{Answer, CommonArgs, Flow, Runtime, Stopped};
+use runtime::{Answer, BadValues, CommonArgs, Flow, Runtime, Stopped};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -42,6 +45,12 @@ pub struct Args {
     /// Save --checkpoint every N episodes (0: only at shutdown).
     #[arg(long, value_name = "N", default_value_t = 10)]
     pub save_every: u64,
+    /// Run step two's protocol with the checkpoint's learning parameters (learning.toml's
+    /// [evaluation] and [safety]): evaluation trials between the learning ones, every actor update
+    /// bounded and kept in the stable set, the best policy restored when a new one evaluates worse.
+    /// Acting only, every trial is an evaluation trial.
+    #[arg(long)]
+    pub step_two: bool,
 }
 
 /// The process name of a DOF's behaviour.
@@ -70,13 +79,13 @@ fn actor_updates(state: &AgentState) -> u64 {
     }
 }
 
-/// The agent to start with (see the module docs).
+/// The agent to start with (see the module docs), and the seed of its exploration noise.
 fn start_agent(
     rt: &Runtime,
     dof: Dof,
     args: &Args,
     store: Option<&mut CheckpointFile>,
-) -> anyhow::Result<Agent> {
+) -> anyhow::Result<(Agent, u64)> {
     let stream_seed = rt.stream_seed(dof.name());
     let own = match store {
         Some(store) => store.load(dof)?.map(|l| (l.state, l.from)),
@@ -106,7 +115,7 @@ fn start_agent(
             seed = stream_seed,
             "no checkpoint: starting fresh"
         );
-        return Ok(agent);
+        return Ok((agent, stream_seed));
     };
     if let Some(asked) = args.algorithm
         && asked != state.algorithm()
@@ -148,7 +157,7 @@ fn start_agent(
         seed,
         "checkpoint loaded"
     );
-    Ok(agent)
+    Ok((agent, seed))
 }
 
 fn save(store: &mut CheckpointFile, behaviour: &Behaviour) -> anyhow::Result<()> {
@@ -170,7 +179,7 @@ fn save(store: &mut CheckpointFile, behaviour: &Behaviour) -> anyhow::Result<()>
 /// Runs the behaviour of `dof` until a termination signal.
 pub fn serve(rt: &Runtime, dof: Dof, args: &Args) -> anyhow::Result<()> {
     let mut store = args.checkpoint.clone().map(CheckpointFile::new);
-    let mut agent = start_agent(rt, dof, args, store.as_mut())?;
+    let (mut agent, seed) = start_agent(rt, dof, args, store.as_mut())?;
     let learning = !args.act_only;
     agent.set_learning(learning);
     // Only a learner writes its checkpoint.
@@ -194,15 +203,42 @@ pub fn serve(rt: &Runtime, dof: Dof, args: &Args) -> anyhow::Result<()> {
         }
         _ => {}
     }
-    let mut behaviour = Behaviour::new(agent);
+    let mut behaviour = if args.step_two {
+        let step_two = StepTwo::new(agent.params(), learning, rt.stream_seed(dof.name()), seed);
+        let p = agent.params();
+        tracing::info!(
+            evaluation_trials = p.evaluation.trials,
+            learning_trials = p.evaluation.learning_trials,
+            trust_region = p.safety.trust_region.enabled,
+            stability_guard = p.safety.stability.enabled,
+            rollback = p.safety.rollback.enabled,
+            best = ?agent.safety().best,
+            "step two: evaluations, the safety guard and keeping the best"
+        );
+        Behaviour::for_step_two(agent, step_two, rt.scenario())
+            .context("cannot build the stability guard from the identified model")?
+    } else {
+        Behaviour::new(agent)
+    };
 
     let observations = rt.inbox(&topics::CABLE_OBSERVATION)?;
     let commands = rt.outbox(&topics::command(dof))?;
     let stats = rt.outbox(&topics::learning(dof))?;
+    let limits = rt.scenario().observation.clone();
+    let mut bad = BadValues::new(observations.service());
+    let clock = *rt.clock();
     let served = rt.serve_steps(
         &observations,
         &mut behaviour,
-        |behaviour, msg| Ok(behaviour.step(msg)),
+        |behaviour, msg| {
+            // A learner never sees a value outside the observation box, nor a NaN.
+            let (observation, fixes) = msg.observation.bounded(&limits);
+            bad.note(fixes, msg.stamp.seq, clock.now_ns());
+            Ok(Some(behaviour.step(&CableObservationMsg {
+                stamp: msg.stamp,
+                observation,
+            })))
+        },
         |behaviour, answer| {
             let out = answer.output();
             commands.send(out.command)?;
@@ -219,6 +255,10 @@ pub fn serve(rt: &Runtime, dof: Dof, args: &Args) -> anyhow::Result<()> {
                 steps = s.steps,
                 gain = ?s.gain,
                 actor_updates = s.actor_updates,
+                evaluation = s.evaluation,
+                bounded = s.bounded,
+                refused = s.refused,
+                rollbacks = s.rollbacks,
                 "episode ended"
             );
             if let Some(store) = saver.as_mut()

@@ -61,7 +61,7 @@ fn serve_sim(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     rt.serve_steps(
         &states,
         &mut camera,
-        |_, state| Ok(*state),
+        |_, state| Ok(Some(*state)),
         |camera, answer| {
             // A repeat is rendered again: the same seed and frame index give the same bytes.
             let state = answer.output();
@@ -92,14 +92,15 @@ fn serve_vehicle(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
             Box::new(ReplaySource::open(dir, Pacing::Speed(speed))?)
         }
     };
-    let mut camera = VehicleCamera::new((c.width, c.height), SeqMap::starting_now());
+    let clock = *rt.clock();
+    let mut camera = VehicleCamera::new((c.width, c.height), SeqMap::new(0), clock.new_epoch());
     camera.check(source.as_ref()).map_err(anyhow::Error::msg)?;
     let frames = rt.frame_outbox()?;
     let (inputs, timer) = match source.wake() {
         Wake::Listener(l) => (vec![l], Timer::Timeout(QUIET_NOTE)),
         Wake::Every(period) => (Vec::new(), Timer::Interval(period)),
     };
-    tracing::info!(source = %source.describe(), "ready");
+    tracing::info!(source = %source.describe(), epoch = camera.epoch(), "ready");
     let mut frame = Frame::default();
     let mut last_frame = Instant::now();
     rt.serve(&inputs, timer, |_| {
@@ -115,7 +116,7 @@ fn serve_vehicle(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
                 }
             };
             // A repeat refills the frame with the repeated image.
-            let header = match camera.on_read(read, &frame.meta) {
+            let header = match camera.on_read(read, &frame.meta, clock.now_ns()) {
                 Publish::New(h) | Publish::Again(h) => h,
                 Publish::Wait => {
                     if !inputs.is_empty() && last_frame.elapsed() >= QUIET_NOTE {

@@ -5,12 +5,14 @@
 //! **The stamp.** `time_ns`, the trial (as the episode), the step and the status are the source's,
 //! unchanged: the behaviours end their episodes on the source's status, and the twin matches the
 //! setpoints answering a frame by its time. `seq` is the camera's own ([`SeqMap`]): the source's frame
-//! counter plus a base fixed when the camera starts, the time since the Unix epoch in microseconds.
-//! So gaps in the source's count (dropped frames) show as gaps in `seq`, and a restarted camera
-//! starts above every `seq` it published before (it published fewer frames than microseconds went
-//! by): the consumers, which drop a `seq` not above the last they saw, take its frames at once.
-//! When the source's count goes back (the device restarted), the base moves up so `seq` keeps
-//! increasing.
+//! counter, so gaps in the source's count (dropped frames) show as gaps in `seq`; when the source's
+//! count goes back (the device restarted), a base moves up so `seq` keeps increasing. The camera
+//! numbers its frames in an *epoch* of its own, new at each start (`Stamp::epoch`), and stamps
+//! each with the vehicle clock when it read the frame (`Stamp::clock_ns`, the machine's monotonic
+//! clock): a restarted camera starts a new epoch, which its consumers follow whatever its `seq`, and
+//! no wall clock (which has no RTC or NTP under water) is read at all. A frame published again (the
+//! source repeated it) keeps its `seq` and takes the time of its new publication, so a consumer that
+//! missed it judges it fresh.
 //!
 //! **Pacing** is the source's: the twin's clock (the camera blocks on the twin's frame topic) or the
 //! dive's timestamps (the camera wakes at the dive's pace). The camera itself never sleeps.
@@ -18,7 +20,6 @@
 use adapters::{FrameMeta, FrameSource, Read};
 use messages::{CameraFrameHeader, Stamp};
 use std::path::PathBuf;
-use std::time::{SystemTime, UNIX_EPOCH};
 
 /// Which frame source the vehicle's camera reads.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -56,14 +57,6 @@ impl SeqMap {
         SeqMap { base, last: None }
     }
 
-    /// The base of a camera starting now: microseconds since the Unix epoch.
-    pub fn starting_now() -> Self {
-        let us = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0, |d| d.as_micros() as u64);
-        SeqMap::new(us)
-    }
-
     /// The camera's `seq` for the source's new frame `source_seq`: increasing, whatever the source.
     pub fn next(&mut self, source_seq: u64) -> u64 {
         let mut out = self.base.saturating_add(source_seq);
@@ -84,10 +77,12 @@ impl SeqMap {
     }
 }
 
-/// The header of a source's frame published with the camera's `seq`.
-pub fn header(meta: &FrameMeta, seq: u64) -> CameraFrameHeader {
+/// The header of a source's frame published with the camera's `seq` in its `epoch`, read at
+/// `clock_ns` on the vehicle clock.
+pub fn header(meta: &FrameMeta, seq: u64, epoch: u32, clock_ns: u64) -> CameraFrameHeader {
     CameraFrameHeader {
-        stamp: Stamp::new(seq, meta.time_ns, meta.trial, meta.step, meta.status),
+        stamp: Stamp::new(seq, meta.time_ns, meta.trial, meta.step, meta.status)
+            .timed(epoch, clock_ns),
         width: meta.width,
         height: meta.height,
         // The truth is passed on where the source knows it (ideal perception can use it).
@@ -109,23 +104,30 @@ pub enum Publish {
     End,
 }
 
-/// The vehicle camera's core: sequence numbers and the frame size check, no IPC.
+/// The vehicle camera's core: sequence numbers, stamps and the frame size check, no IPC.
 pub struct VehicleCamera {
     seq: SeqMap,
+    epoch: u32,
     size: (u32, u32),
     last: Option<CameraFrameHeader>,
     published: u64,
 }
 
 impl VehicleCamera {
-    /// A camera publishing frames of `size` (the scenario's camera), numbering them from `seq`.
-    pub fn new(size: (u32, u32), seq: SeqMap) -> Self {
+    /// A camera publishing frames of `size` (the scenario's camera), numbering them with `seq` in
+    /// its `epoch` (new at each start, never 0).
+    pub fn new(size: (u32, u32), seq: SeqMap, epoch: u32) -> Self {
         VehicleCamera {
             seq,
+            epoch,
             size,
             last: None,
             published: 0,
         }
+    }
+
+    pub fn epoch(&self) -> u32 {
+        self.epoch
     }
 
     /// Checks that a source's frames can be published (they have the camera's size).
@@ -143,19 +145,23 @@ impl VehicleCamera {
         Ok(())
     }
 
-    /// What to publish for a read's outcome (`meta` is the frame read, for `Frame` and `Repeat`).
-    pub fn on_read(&mut self, read: Read, meta: &FrameMeta) -> Publish {
+    /// What to publish for a read's outcome at `clock_ns` on the vehicle clock (`meta` is the frame
+    /// read, for `Frame` and `Repeat`).
+    pub fn on_read(&mut self, read: Read, meta: &FrameMeta, clock_ns: u64) -> Publish {
         match read {
             Read::Frame => {
-                let h = header(meta, self.seq.next(meta.seq));
+                let h = header(meta, self.seq.next(meta.seq), self.epoch, clock_ns);
                 self.last = Some(h);
                 self.published += 1;
                 Publish::New(h)
             }
             Read::Repeat => match self.last {
-                Some(h) => Publish::Again(h),
+                Some(mut h) => {
+                    h.stamp.clock_ns = clock_ns;
+                    Publish::Again(h)
+                }
                 // A repeat of a frame this camera never read (it started after it): a new frame.
-                None => self.on_read(Read::Frame, meta),
+                None => self.on_read(Read::Frame, meta, clock_ns),
             },
             Read::Pending { .. } => Publish::Wait,
             Read::End => Publish::End,
@@ -201,48 +207,43 @@ mod tests {
         assert!("usb0".parse::<SourceSpec>().is_err());
     }
 
-    /// The source's gaps stay gaps; a restarted camera starts above all it published; a device
-    /// restart does not make `seq` go back.
+    /// The source's gaps stay gaps; a device restart does not make `seq` go back.
     #[test]
-    fn seq_grows_across_gaps_and_restarts() {
-        let mut m = SeqMap::new(1000);
-        assert_eq!(m.next(1), 1001);
-        assert_eq!(m.next(2), 1002);
-        assert_eq!(m.next(5), 1005, "frames 3 and 4 were dropped");
+    fn seq_grows_across_gaps_and_device_restarts() {
+        let mut m = SeqMap::new(0);
+        assert_eq!(m.next(1), 1);
+        assert_eq!(m.next(2), 2);
+        assert_eq!(m.next(5), 5, "frames 3 and 4 were dropped");
         // The device restarted: its count starts again at 1.
-        assert_eq!(m.next(1), 1006);
-        assert_eq!(m.next(2), 1007);
-        assert_eq!(m.last(), Some(1007));
-        // A camera's base is its start time in microseconds since the epoch: a camera started a
-        // second later starts a million above, more than it could publish in that second.
-        let mut now = SeqMap::starting_now();
-        assert!(now.next(1) > 1_700_000_000_000_000);
-        let mut earlier = SeqMap::new(now.base - 1_000_000);
-        let last = (1..=5_000).map(|k| earlier.next(k)).last().unwrap();
-        assert!(now.next(2) > last);
+        assert_eq!(m.next(1), 6);
+        assert_eq!(m.next(2), 7);
+        assert_eq!(m.last(), Some(7));
     }
 
     #[test]
-    fn the_stamp_is_the_sources_with_the_cameras_seq() {
-        let mut cam = VehicleCamera::new((320, 240), SeqMap::new(100));
+    fn the_stamp_is_the_sources_with_the_cameras_seq_epoch_and_clock() {
+        let mut cam = VehicleCamera::new((320, 240), SeqMap::new(100), 42);
         let m = meta(7, 1400);
-        let Publish::New(h) = cam.on_read(Read::Frame, &m) else {
+        let Publish::New(h) = cam.on_read(Read::Frame, &m, 9_000) else {
             panic!()
         };
         assert_eq!(
             h.stamp,
-            Stamp::new(107, 1_400_000_000, 2, 7, StepStatus::Running)
+            Stamp::new(107, 1_400_000_000, 2, 7, StepStatus::Running).timed(42, 9_000)
         );
         assert_eq!((h.width, h.height), (320, 240));
         assert_eq!(h.truth, m.truth.unwrap());
-        assert_eq!(cam.on_read(Read::Repeat, &m), Publish::Again(h));
+        // Published again: the same step, stamped with the time of its new publication.
+        let mut again = h;
+        again.stamp.clock_ns = 9_500;
+        assert_eq!(cam.on_read(Read::Repeat, &m, 9_500), Publish::Again(again));
         assert_eq!(
-            cam.on_read(Read::Pending { until: None }, &m),
+            cam.on_read(Read::Pending { until: None }, &m, 9_600),
             Publish::Wait
         );
-        assert_eq!(cam.on_read(Read::End, &m), Publish::End);
+        assert_eq!(cam.on_read(Read::End, &m, 9_700), Publish::End);
         let unknown = FrameMeta { truth: None, ..m };
-        assert_eq!(header(&unknown, 1).truth.found, 0);
+        assert_eq!(header(&unknown, 1, 42, 1).truth.found, 0);
         assert_eq!(cam.published(), 1);
     }
 }

@@ -9,25 +9,31 @@
 //! truth is passed on as the observation.
 //!
 //! A frame perception cannot use (an image of another size than the header says, or than the camera
-//! makes) gives a *not found* observation and the reason ([`Observed::bad_frame`]), never an error:
-//! a broken frame must not stop the vehicle's loop.
+//! makes: a truncated frame) is refused with the reason, and the tracker is left as it was: the
+//! step stays unanswered (an intact copy of it can still be perceived), and the loop goes on with
+//! the next frame. The truth passed on by ideal perception is put under the rule for bad values
+//! (`CableObservationData::bounded`) and what it changed is reported ([`Observed::fixes`]).
 
-use config::{Eyes, Scenario};
+use config::{Eyes, ObservationLimits, Scenario};
 use messages::{CableObservationData, CableObservationMsg, CameraFrameHeader, Stamp};
+use model::bounds::Fixes;
 use vision::{ImageView, Perception, VisionError};
 
 /// One frame's result.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Observed {
     /// The observation, stamped with the frame's stamp.
     pub msg: CableObservationMsg,
-    /// Why the frame could not be used (the observation then says not found).
-    pub bad_frame: Option<VisionError>,
+    /// What the rule for bad values changed in the truth passed on (ideal perception).
+    pub fixes: Fixes,
 }
 
 /// The perception stage of the loop.
 pub struct Observer {
     tracker: Option<Perception>,
+    limits: ObservationLimits,
+    /// The camera's frame size.
+    size: (usize, usize),
     sample_time_s: f64,
     /// The last frame perceived in the current episode.
     last: Option<Stamp>,
@@ -42,6 +48,11 @@ impl Observer {
         };
         Ok(Observer {
             tracker,
+            limits: scenario.observation.clone(),
+            size: (
+                scenario.camera.width as usize,
+                scenario.camera.height as usize,
+            ),
             sample_time_s: scenario.timing.sample_time_s,
             last: None,
         })
@@ -55,18 +66,32 @@ impl Observer {
         }
     }
 
-    /// The observation of one frame (call it once per step: the tracker moves on with each call).
-    pub fn observe(&mut self, header: &CameraFrameHeader, image: &[u8]) -> Observed {
+    /// The observation of one frame (call it once per step: the tracker moves on with each call),
+    /// or why the frame cannot be used (the tracker then left as it was).
+    pub fn observe(
+        &mut self,
+        header: &CameraFrameHeader,
+        image: &[u8],
+    ) -> Result<Observed, VisionError> {
         let stamp = header.stamp;
         let Some(tracker) = &mut self.tracker else {
-            return Observed {
-                msg: CableObservationMsg {
-                    stamp,
-                    observation: header.truth,
-                },
-                bad_frame: None,
-            };
+            let (observation, fixes) = header.truth.bounded(&self.limits);
+            return Ok(Observed {
+                msg: CableObservationMsg { stamp, observation },
+                fixes,
+            });
         };
+        // Checked before the tracker sees it: a broken frame must not reset or move the track.
+        let view = ImageView::new(image, header.width as usize, header.height as usize)?;
+        if (view.width(), view.height()) != self.size {
+            return Err(VisionError::SizeMismatch {
+                what: "perception",
+                width: self.size.0,
+                height: self.size.1,
+                got_width: view.width(),
+                got_height: view.height(),
+            });
+        }
         let new_episode = stamp.step == 0 || self.last.is_none_or(|l| l.episode != stamp.episode);
         if new_episode {
             tracker.reset();
@@ -76,27 +101,15 @@ impl Observer {
             Some(l) if stamp.time_ns > l.time_ns => (stamp.time_ns - l.time_ns) as f64 / 1e9,
             _ => self.sample_time_s,
         };
-        let result = ImageView::new(image, header.width as usize, header.height as usize)
-            .and_then(|view| tracker.process(view, dt));
-        match result {
-            Ok(obs) => {
-                self.last = Some(stamp);
-                Observed {
-                    msg: CableObservationMsg {
-                        stamp,
-                        observation: CableObservationData::from(&obs),
-                    },
-                    bad_frame: None,
-                }
-            }
-            Err(e) => Observed {
-                msg: CableObservationMsg {
-                    stamp,
-                    observation: CableObservationData::default(),
-                },
-                bad_frame: Some(e),
+        let obs = tracker.process(view, dt)?;
+        self.last = Some(stamp);
+        Ok(Observed {
+            msg: CableObservationMsg {
+                stamp,
+                observation: CableObservationData::from(&obs),
             },
-        }
+            fixes: Fixes::default(),
+        })
     }
 }
 
@@ -123,38 +136,47 @@ mod tests {
     fn ideal_eyes_pass_the_truth_on() {
         let mut o = Observer::new(&Scenario::default(), Eyes::Ideal).unwrap();
         let h = header(4, 0, 3);
-        let got = o.observe(&h, &[]);
+        let got = o.observe(&h, &[]).unwrap();
         assert_eq!(got.msg.stamp, h.stamp);
         assert_eq!(got.msg.observation, h.truth);
-        assert!(got.bad_frame.is_none());
+        assert!(got.fixes.is_empty());
+        // A broken truth is put under the rule: not finite is 0, out of range clamped.
+        let broken = CameraFrameHeader {
+            truth: CableObservationData {
+                x_g: f64::NAN,
+                theta: 9.0,
+                ..h.truth
+            },
+            ..h
+        };
+        let got = o.observe(&broken, &[]).unwrap();
+        assert_eq!(got.msg.observation.x_g, 0.0);
+        assert_eq!(got.msg.observation.theta, std::f64::consts::FRAC_PI_2);
+        assert_eq!((got.fixes.non_finite, got.fixes.clamped), (1, 1));
     }
 
     #[test]
-    fn a_bad_frame_is_not_found_with_the_reason() {
+    fn a_bad_frame_is_refused_with_the_reason() {
         let mut o = Observer::new(&Scenario::default(), Eyes::Images).unwrap();
         let h = header(2, 0, 1);
-        let short = o.observe(&h, &[0; 100]);
-        assert_eq!(short.msg.stamp, h.stamp);
-        assert_eq!(short.msg.observation.found, 0);
         assert!(matches!(
-            short.bad_frame,
-            Some(VisionError::LengthMismatch { got: 100, .. })
+            o.observe(&h, &[0; 100]),
+            Err(VisionError::LengthMismatch { got: 100, .. })
         ));
         let other_size = CameraFrameHeader {
             width: 160,
             height: 120,
             ..h
         };
-        let small = o.observe(&other_size, &[0; 160 * 120]);
         assert!(matches!(
-            small.bad_frame,
-            Some(VisionError::SizeMismatch { .. })
+            o.observe(&other_size, &[0; 160 * 120]),
+            Err(VisionError::SizeMismatch { .. })
         ));
         let absurd = CameraFrameHeader {
             width: 0,
             height: u32::MAX,
             ..h
         };
-        assert!(o.observe(&absurd, &[]).bad_frame.is_some());
+        assert!(o.observe(&absurd, &[]).is_err());
     }
 }

@@ -4,8 +4,8 @@
 use clap::Parser;
 use config::Eyes;
 use messages::topics;
-use perception::{Observed, Observer};
-use runtime::{Answer, CommonArgs, Flow};
+use perception::Observer;
+use runtime::{BadValues, CommonArgs, Flow, Tally};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -29,23 +29,32 @@ fn main() -> ExitCode {
         let frames = rt.frame_inbox()?;
         let out = rt.outbox(&topics::CABLE_OBSERVATION)?;
         tracing::info!(eyes = ?args.eyes, "ready");
+        let clock = *rt.clock();
+        let mut bad_frames = Tally::default();
+        let mut bad_values = BadValues::new(frames.service());
         rt.serve_steps(
             &frames,
             &mut observer,
-            |observer, (header, image)| Ok(observer.observe(header, image)),
-            |_, answer| {
-                let observed = answer.output();
-                if let Answer::New(Observed {
-                    bad_frame: Some(why),
-                    msg,
-                }) = answer
-                {
-                    tracing::warn!(
-                        seq = msg.stamp.seq,
-                        "bad frame, reported as not found: {why}"
-                    );
+            |observer, (header, image)| match observer.observe(header, image) {
+                Ok(observed) => {
+                    bad_values.note(observed.fixes, header.stamp.seq, clock.now_ns());
+                    Ok(Some(observed))
                 }
-                out.send(observed.msg)?;
+                Err(why) => {
+                    // Refused: the step stays unanswered, the loop goes on with the next frame.
+                    if let Some(earlier) = bad_frames.count(clock.now_ns()) {
+                        tracing::warn!(
+                            seq = header.stamp.seq,
+                            earlier_unlogged = earlier,
+                            total = bad_frames.total(),
+                            "bad frame refused: {why}"
+                        );
+                    }
+                    Ok(None)
+                }
+            },
+            |_, answer| {
+                out.send(answer.output().msg)?;
                 Ok(Flow::Continue)
             },
         )?;

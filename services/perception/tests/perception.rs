@@ -141,31 +141,55 @@ fn ideal_eyes_pass_the_truth_on() {
     assert_eq!(obs.observation, truth);
 }
 
+/// A truncated frame is refused (logged, no observation) and does not take its step: the same step
+/// sent intact is perceived; perception goes on.
 #[test]
-fn a_bad_frame_is_reported_not_found_and_perception_goes_on() {
+fn a_bad_frame_is_refused_and_perception_goes_on() {
     let ns = Namespace::new("pcbd");
     let mut r = rig(&ns, "images");
     let scenario = scenario();
     // Shorter than width * height.
     r.send(header(1, 0, CableObservationData::default()), &[128; 100]);
-    let bad = r.observation(1);
-    assert_eq!(bad.observation.found, 0);
+    let (image, line) = rendered(&scenario, 0.05, 0.1);
+    r.send(header(1, 0, CableObservationData::default()), &image);
+    // The first observation is the intact frame's: none came for the truncated one.
+    let good = r
+        .probe
+        .wait_for(&r.observations, T, |_| true)
+        .unwrap_or_else(|| panic!("no observation\n{}", r.perception.log()));
+    assert_eq!(good.stamp.seq, 1);
+    assert_eq!(good.observation.found, 1);
+    assert!((good.observation.x_g - line.x_g).abs() < 0.01);
     let log = r.perception.log();
     assert!(
-        log.contains("WARN") && log.contains("bad frame"),
+        log.contains("WARN") && log.contains("bad frame refused"),
         "the bad frame is logged:\n{log}"
     );
     assert!(r.perception.is_running());
 
-    // The next step's good frame is perceived.
-    let (image, line) = rendered(&scenario, 0.05, 0.1);
-    r.send(header(2, 1, CableObservationData::default()), &image);
-    let good = r.observation(2);
-    assert_eq!(good.observation.found, 1);
-    assert!((good.observation.x_g - line.x_g).abs() < 0.01);
-
     // A step is perceived once: its frame again, even broken, gets the same observation.
-    r.send(header(2, 1, CableObservationData::default()), &[0; 10]);
-    assert_eq!(r.observation(2), good);
+    r.send(header(1, 0, CableObservationData::default()), &[0; 10]);
+    assert_eq!(r.observation(1), good);
     assert!(r.perception.is_running());
+}
+
+/// A service stalled and resumed (SIGSTOP, SIGCONT: a debugger, a supervisor's stall check) goes on
+/// serving: the signal that wakes its blocked wait is not a request to stop; SIGTERM still is.
+#[test]
+fn a_stalled_and_resumed_service_goes_on_and_stops_on_sigterm() {
+    let ns = Namespace::new("pcsc");
+    let mut r = rig(&ns, "ideal");
+    let truth = CableObservationData {
+        found: 1,
+        x_g: 0.1,
+        confidence: 1.0,
+        ..Default::default()
+    };
+    r.send(header(1, 0, truth), &[]);
+    r.observation(1);
+    assert!(r.perception.signal(libc::SIGSTOP) && r.perception.signal(libc::SIGCONT));
+    r.send(header(2, 1, truth), &[]);
+    r.observation(2);
+    let status = r.perception.terminate(T);
+    assert!(status.success(), "{status:?}\n{}", r.perception.log());
 }

@@ -3,7 +3,7 @@
 
 use clap::Parser;
 use messages::{DofCommand, topics};
-use runtime::{CommonArgs, Flow};
+use runtime::{BadValues, CommonArgs, Flow};
 use std::process::ExitCode;
 use surge_controller::SurgeController;
 
@@ -24,14 +24,19 @@ fn main() -> ExitCode {
         let controller = SurgeController::new(&scenario.surge, &scenario.model.surge);
         let observations = rt.inbox(&topics::CABLE_OBSERVATION)?;
         let commands = rt.outbox(&topics::SURGE_COMMAND)?;
+        let limits = scenario.observation.clone();
+        let mut bad = BadValues::new(observations.service());
+        let clock = *rt.clock();
         rt.serve_steps(
             &observations,
             &mut (),
             |_, msg| {
-                Ok(DofCommand {
+                let (observation, fixes) = msg.observation.bounded(&limits);
+                bad.note(fixes, msg.stamp.seq, clock.now_ns());
+                Ok(Some(DofCommand {
                     stamp: msg.stamp,
-                    value: controller.command(&msg.observation()),
-                })
+                    value: controller.command(&(&observation).into()),
+                }))
             },
             // A repeated step gets the command computed for it the first time.
             |_, answer| {

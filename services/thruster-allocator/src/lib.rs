@@ -1,15 +1,19 @@
 //! The thruster allocator's core: maps the behaviours' DOF commands (normalised surge, sway and yaw
 //! forces) to thruster setpoints in [-1, 1].
 //!
-//! The layout's matrix `B` (setpoints to normalised forces, see [`model::thrusters`]) has full row
-//! rank, so its Moore-Penrose pseudo-inverse `B' (B B')^-1` gives the least-norm setpoints for a
-//! force. When a setpoint exceeds 1 the whole vector is scaled down by the largest magnitude: the
-//! vehicle then pushes in the commanded direction, only less hard (clipping each thruster alone
-//! would turn a pure surge-plus-yaw command into a different mix).
+//! Each DOF's command is first put under the rule for bad values (`model::bounds`: within [-1, 1],
+//! a value that is not finite 0), DOF by DOF, so one absurd command (a sway of 50) cannot squeeze the
+//! others out of the scaling below. The layout's matrix `B` (setpoints to normalised forces, see
+//! [`model::thrusters`]) has full row rank, so its Moore-Penrose pseudo-inverse `B' (B B')^-1` gives
+//! the least-norm setpoints for a force. When a setpoint exceeds 1 the whole vector is scaled down by
+//! the largest magnitude: the vehicle then pushes in the commanded direction, only less hard
+//! (clipping each thruster alone would turn a pure surge-plus-yaw command into a different mix).
 //!
-//! [`step::StepAllocator`] is the allocator's side of the lockstep: it gathers the three commands of
-//! one step, answers each step once, and allocates a step whose commands did not all arrive within
-//! the deadline with the missing ones as 0.
+//! [`step::StepAllocator`] is the allocator's side of the lockstep: it judges each command's stamp
+//! (`runtime::lockstep::Screen`), gathers the three commands of one step, answers each step once,
+//! and allocates a step whose commands did not all arrive within the deadline with the missing ones
+//! as 0. The allocator only publishes its setpoints; on the vehicle the thruster driver
+//! (`thruster-driver`) owns the thrusters.
 
 pub mod step;
 
@@ -36,6 +40,8 @@ pub struct Allocation {
     pub setpoints: Setpoints,
     /// The factor applied to keep every setpoint within [-1, 1] (1 when nothing saturated).
     pub scale: f64,
+    /// The commands the rule for bad values changed before allocation.
+    pub fixes: model::bounds::Fixes,
 }
 
 pub struct Allocator {
@@ -63,15 +69,12 @@ impl Allocator {
         &self.layout
     }
 
-    /// The setpoints for the commanded forces. A NaN command counts as 0, so a broken behaviour
-    /// cannot drive the thrusters.
+    /// The setpoints for the commanded forces, each DOF's command put under the rule for bad values
+    /// first (a broken behaviour cannot drive the thrusters, nor crowd out the other DOFs).
     pub fn allocate(&self, command: Forces) -> Allocation {
-        let clean = |f: f64| if f.is_finite() { f } else { 0.0 };
-        let tau = [
-            clean(command.surge),
-            clean(command.sway),
-            clean(command.yaw),
-        ];
+        let mut fixes = model::bounds::Fixes::default();
+        let command = command.bounded(&mut fixes);
+        let tau = [command.surge, command.sway, command.yaw];
         let n = self.layout.len();
         let mut values = [0.0; MAX_THRUSTERS];
         for (i, value) in values.iter_mut().take(n).enumerate() {
@@ -85,38 +88,7 @@ impl Allocator {
         Allocation {
             setpoints: Setpoints { values, len: n },
             scale,
-        }
-    }
-}
-
-/// Which thruster sink the allocator writes on the vehicle endpoint.
-///
-/// On the vehicle endpoint the allocator publishes each step's setpoints on its setpoint topic, as
-/// on the sim endpoint (for monitors and recorders), *and* writes them to the vehicle's thruster
-/// sink (`adapters`), which drives the thrusters. On the sim endpoint the simulator reads the topic
-/// and there is no sink.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum SinkSpec {
-    /// The vehicle twin's thrusters (`cabletrack/twin/thrusters`).
-    Twin,
-    /// A record file of every setpoint with its times (a dry run: nothing moves).
-    Record(std::path::PathBuf),
-    /// Nothing: the setpoints only go to the topic.
-    Null,
-}
-
-impl std::str::FromStr for SinkSpec {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "twin" => Ok(SinkSpec::Twin),
-            "null" => Ok(SinkSpec::Null),
-            _ => match s.strip_prefix("record:") {
-                Some(file) if !file.is_empty() => Ok(SinkSpec::Record(file.into())),
-                _ => Err(format!(
-                    "unknown thruster sink `{s}` (expected `twin`, `record:FILE` or `null`)"
-                )),
-            },
+            fixes,
         }
     }
 }
@@ -233,18 +205,6 @@ mod tests {
     }
 
     #[test]
-    fn sinks_parse() {
-        assert_eq!("twin".parse(), Ok(SinkSpec::Twin));
-        assert_eq!("null".parse(), Ok(SinkSpec::Null));
-        assert_eq!(
-            "record:/tmp/x.csv".parse(),
-            Ok(SinkSpec::Record("/tmp/x.csv".into()))
-        );
-        assert!("record:".parse::<SinkSpec>().is_err());
-        assert!("can0".parse::<SinkSpec>().is_err());
-    }
-
-    #[test]
     fn nan_commands_give_zero_thrust() {
         let alloc = Allocator::new(&Thrusters::default());
         let a = alloc.allocate(Forces {
@@ -253,5 +213,29 @@ mod tests {
             yaw: 0.0,
         });
         assert!(a.setpoints.as_slice().iter().all(|v| *v == 0.0));
+        assert_eq!((a.fixes.non_finite, a.fixes.clamped), (2, 0));
+    }
+
+    /// An absurd command on one DOF is clamped on its own: the other DOFs keep their thrust.
+    #[test]
+    fn each_dof_is_clamped_before_allocation() {
+        let alloc = Allocator::new(&Thrusters::default());
+        let wild = alloc.allocate(Forces {
+            surge: 0.5,
+            sway: 50.0,
+            yaw: 0.2,
+        });
+        let tame = alloc.allocate(Forces {
+            surge: 0.5,
+            sway: 1.0,
+            yaw: 0.2,
+        });
+        assert_eq!(wild.setpoints, tame.setpoints);
+        assert_eq!((wild.fixes.non_finite, wild.fixes.clamped), (0, 1));
+        let f = alloc.layout().forces(wild.setpoints.as_slice());
+        assert!(
+            (f.surge - 0.5).abs() < 1e-12 && (f.yaw - 0.2).abs() < 1e-12,
+            "{f:?}"
+        );
     }
 }

@@ -3,7 +3,7 @@
 use config::Scenario;
 use messages::{DofCommand, Endpoint, Stamp, StepStatus, topics};
 use model::ThrusterLayout;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use testkit::{Namespace, Process};
 
 const T: Duration = Duration::from_secs(10);
@@ -144,13 +144,12 @@ fn sigterm_stops_it_cleanly() {
     assert!(alloc.log().contains("stopped"));
 }
 
-/// On the vehicle endpoint the setpoints go to the topic and to the thruster sink: here a record
-/// file, closed (complete) when the allocator stops.
+/// One allocator at a time: a second one refuses to start while the first is alive, with an error
+/// naming it, and the first goes on answering; once the first is killed (SIGKILL: no clean-up), a
+/// new one takes its place.
 #[test]
-fn on_the_vehicle_endpoint_setpoints_are_written_to_the_sink() {
-    let ns = Namespace::new("alv");
-    let tmp = tempfile::tempdir().unwrap();
-    let file = tmp.path().join("setpoints.csv");
+fn a_second_allocator_is_refused_while_the_first_is_alive() {
+    let ns = Namespace::new("al2");
     let probe = testkit::probe(&ns, Endpoint::Vehicle);
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
     let outs = [
@@ -158,48 +157,62 @@ fn on_the_vehicle_endpoint_setpoints_are_written_to_the_sink() {
         probe.outbox(&topics::SWAY_COMMAND),
         probe.outbox(&topics::YAW_COMMAND),
     ];
-    let sink = format!("record:{}", file.display());
-    let mut alloc = Process::start(
-        &ns,
-        &testkit::binary("thruster-allocator"),
-        &["--endpoint", "vehicle", "--sink", &sink],
-    );
-    assert!(probe.wait_for_publisher(&setpoints, T), "{}", alloc.log());
-    assert!(probe.wait_for_subscribers(&outs[2], 1, T));
-    let mut sent = Vec::new();
-    for seq in [11, 12, 14] {
-        for (o, v) in outs.iter().zip([0.5, -0.2, 0.3]) {
-            o.send(command(seq, v)).unwrap();
+    let allocator = || {
+        Process::start(
+            &ns,
+            &testkit::binary("thruster-allocator"),
+            &["--endpoint", "vehicle"],
+        )
+    };
+    // A step's commands, sent again every second until answered (as a producer that hears nothing
+    // back does): a new allocator may subscribe only after the first send, and a dead one's
+    // subscriptions count until they are removed.
+    let step = |seq: u64| {
+        let end = Instant::now() + T;
+        while Instant::now() < end {
+            for o in &outs {
+                o.send(command(seq, 0.1)).unwrap();
+            }
+            let got = probe.wait_for(&setpoints, Duration::from_secs(1), |m| m.stamp.seq == seq);
+            if got.is_some() {
+                return got;
+            }
         }
-        let msg = probe
-            .wait_for(&setpoints, T, |m| m.stamp.seq == seq)
-            .unwrap();
-        sent.push(msg);
-    }
-    let status = alloc.terminate(T);
-    assert!(status.success(), "{}", alloc.log());
-    let (names, records) = adapters::record::read_record(&file).unwrap();
-    assert_eq!(names, ["port", "starboard", "lateral"]);
-    assert_eq!(records.len(), 3);
-    for (r, m) in records.iter().zip(&sent) {
-        assert_eq!(r.stamp, m.stamp);
-        assert_eq!(r.values, m.as_slice());
-    }
-}
-
-#[test]
-fn a_sink_on_the_sim_endpoint_is_refused() {
-    let ns = Namespace::new("als2");
-    let mut alloc = Process::start(
-        &ns,
-        &testkit::binary("thruster-allocator"),
-        &["--endpoint", "sim", "--sink", "twin"],
-    );
-    let status = alloc.wait(T).expect("it exits");
-    assert!(!status.success());
+        None
+    };
+    let mut first = allocator();
     assert!(
-        alloc.log().contains("`vehicle` endpoint"),
-        "{}",
-        alloc.log()
+        probe.wait_for_publisher(&setpoints, T),
+        "the first allocator never came up:\n{}",
+        first.log()
     );
+    assert!(probe.wait_for_subscribers(&outs[2], 1, T));
+    assert!(step(1).is_some(), "{}", first.log());
+
+    let mut second = allocator();
+    let status = second
+        .wait(T)
+        .unwrap_or_else(|| panic!("the second allocator did not give up:\n{}", second.log()));
+    assert!(!status.success());
+    let log = second.log();
+    assert!(
+        log.contains("one publisher at a time") && log.contains("`thruster-allocator`"),
+        "a clear error naming the live allocator:\n{log}"
+    );
+    assert!(step(2).is_some(), "the first goes on:\n{}", first.log());
+
+    first.kill9();
+    let mut third = allocator();
+    // Its subscribers show it is up; the dead one's place was freed.
+    assert!(
+        probe.wait_for_subscribers(&outs[2], 1, T),
+        "the new allocator never came up:\n{}",
+        third.log()
+    );
+    assert!(
+        step(3).is_some(),
+        "the new allocator answers:\n{}",
+        third.log()
+    );
+    assert!(third.terminate(T).success(), "{}", third.log());
 }

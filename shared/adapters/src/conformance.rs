@@ -11,9 +11,10 @@
 //!
 //! The suites panic with the implementation's name and what failed, like any test assertion.
 
+use crate::failsafe::Failsafe;
 use crate::{
     AdapterError, CableObservationData, Frame, FrameMeta, FrameSource, Read, Stamp, StepStatus,
-    ThrusterSink, Wake,
+    StopCause, ThrusterSink, Wake,
 };
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::time::{Duration, Instant};
@@ -48,9 +49,29 @@ pub trait SinkRig {
     fn name(&self) -> String;
     /// A sink for `thrusters` thrusters (the previous sink of this rig has been dropped).
     fn open(&mut self, thrusters: usize) -> Result<Self::Sink, AdapterError>;
-    /// What reached the thrusters since the last call, in order (called after a flush); `None`
-    /// when the sink's output cannot be seen (a null sink).
-    fn received(&mut self, sink: &mut Self::Sink) -> Option<Vec<(Stamp, Vec<f64>)>>;
+    /// What reached the thrusters since the last call, in order (called after a flush or a
+    /// close); `None` when the sink's output cannot be seen (a null sink).
+    fn received(&mut self, sink: &mut Self::Sink) -> Option<Vec<Arrived>>;
+}
+
+/// What reached the thrusters: a step's setpoints, or a stop.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Arrived {
+    pub stamp: Stamp,
+    pub values: Vec<f64>,
+    /// The cause of a failsafe stop; `None` for a step's setpoints.
+    pub stop: Option<StopCause>,
+}
+
+impl Arrived {
+    /// A stop of `thrusters` thrusters, stamped `stamp`.
+    pub fn stop(stamp: Stamp, thrusters: usize, cause: StopCause) -> Self {
+        Arrived {
+            stamp,
+            values: vec![0.0; thrusters],
+            stop: Some(cause),
+        }
+    }
 }
 
 /// The suite's test frames, `width x height`: seq gaps (frames lost before the source), a trial
@@ -351,9 +372,14 @@ pub fn frame_source<R: SourceRig>(rig: &mut R) {
 /// - A sink has the thrusters it was opened for; 0 or more than `MAX_THRUSTERS` is refused.
 /// - Setpoints within [-1, 1] arrive unchanged, with their stamp, in order.
 /// - Out of range ones arrive clipped; NaN and infinities arrive as 0; the write says how many
-///   were made safe.
+///   were made safe, and how.
 /// - A wrong count is an error and nothing arrives.
-/// - flush works; close is idempotent; writing or flushing after close is an error.
+/// - `stop` makes every thruster 0 at once, marked as a stop with its cause and the last step's
+///   stamp, before any write as after.
+/// - Zero on close: `close` after a write stops the thrusters; after a stop it adds none; it is
+///   idempotent; writing, stopping or flushing after it is an error.
+/// - Zero on the deadline: driven by [`Failsafe`], the thrusters stop once (cause `deadline`) when
+///   the setpoints they hold go stale, not before, and take setpoints again after.
 pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
     let name = rig.name();
     for bad in [0, config::MAX_THRUSTERS + 1] {
@@ -364,8 +390,10 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
         }
     }
 
-    let stamp =
-        |seq: u64, status: StepStatus| Stamp::new(seq, seq * 200_000_000, 2, seq as u32, status);
+    // Timed stamps, as on the vehicle: everything in them arrives.
+    let stamp = |seq: u64, status: StepStatus| {
+        Stamp::new(seq, seq * 200_000_000, 2, seq as u32, status).timed(77, 5_000_000_000 + seq)
+    };
     let mut sink = rig
         .open(3)
         .unwrap_or_else(|e| panic!("{name}: cannot open a sink of 3: {e}"));
@@ -377,32 +405,53 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
         assert!(got.is_empty(), "{name}: something arrived before any write");
     }
 
+    // A stop before any write: the thrusters start at rest.
+    sink.stop(&Stamp::default(), StopCause::Start)
+        .unwrap_or_else(|e| panic!("{name}: a stop before any write: {e}"));
+    sink.flush()
+        .unwrap_or_else(|e| panic!("{name}: flush: {e}"));
+    if let Some(got) = rig.received(&mut sink) {
+        assert_eq!(
+            got,
+            vec![Arrived::stop(Stamp::default(), 3, StopCause::Start)],
+            "{name}: a stop before any write"
+        );
+    }
+
     let nan = f64::NAN;
     let inf = f64::INFINITY;
-    let cases: [(&[f64], [f64; 3], usize); 5] = [
-        (&[0.5, -0.25, 0.0], [0.5, -0.25, 0.0], 0),
-        (&[-1.0, 1.0, 0.999], [-1.0, 1.0, 0.999], 0),
-        (&[1.5, -3.0, nan], [1.0, -1.0, 0.0], 3),
-        (&[inf, -inf, 1.0], [0.0, 0.0, 1.0], 2),
-        (&[1.0 + 1e-9, -0.0, -1e300], [1.0, 0.0, -1.0], 2),
+    // (given, as it must arrive, not finite, clamped)
+    let cases: [(&[f64], [f64; 3], u64, u64); 5] = [
+        (&[0.5, -0.25, 0.0], [0.5, -0.25, 0.0], 0, 0),
+        (&[-1.0, 1.0, 0.999], [-1.0, 1.0, 0.999], 0, 0),
+        (&[1.5, -3.0, nan], [1.0, -1.0, 0.0], 1, 2),
+        (&[inf, -inf, 1.0], [0.0, 0.0, 1.0], 2, 0),
+        (&[1.0 + 1e-9, -0.0, -1e300], [1.0, -0.0, -1.0], 0, 2),
     ];
-    for (k, (given, want, changed)) in cases.iter().enumerate() {
+    for (k, (given, want, non_finite, clamped)) in cases.iter().enumerate() {
         let st = stamp(k as u64 + 1, StepStatus::Running);
         let applied = sink
             .write(&st, given)
             .unwrap_or_else(|e| panic!("{name}: write {given:?}: {e}"));
         assert_eq!(applied.as_slice(), want, "{name}: {given:?} made safe");
         assert_eq!(
-            applied.made_safe, *changed,
-            "{name}: {given:?}: changed count"
+            (applied.fixes.non_finite, applied.fixes.clamped),
+            (*non_finite, *clamped),
+            "{name}: {given:?}: what the rule changed"
         );
         sink.flush()
             .unwrap_or_else(|e| panic!("{name}: flush: {e}"));
         if let Some(got) = rig.received(&mut sink) {
             assert_eq!(got.len(), 1, "{name}: one write, one arrival");
-            assert_eq!(got[0].0, st, "{name}: the stamp arrives unchanged");
-            assert_eq!(got[0].1, want, "{name}: what arrives for {given:?}");
-            assert!(got[0].1.iter().all(|v| v.is_finite() && v.abs() <= 1.0));
+            assert_eq!(got[0].stamp, st, "{name}: the stamp arrives unchanged");
+            assert_eq!(got[0].values, want, "{name}: what arrives for {given:?}");
+            assert_eq!(got[0].stop, None, "{name}: a write is not a stop");
+            assert!(
+                got[0]
+                    .values
+                    .iter()
+                    .all(|v| v.is_finite() && v.abs() <= 1.0)
+            );
         }
     }
 
@@ -436,7 +485,7 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
             sink.flush()
                 .unwrap_or_else(|e| panic!("{name}: flush: {e}"));
             if let Some(got) = rig.received(&mut sink) {
-                assert_eq!(got.iter().map(|g| g.0).collect::<Vec<_>>(), burst[..2]);
+                assert_eq!(got.iter().map(|g| g.stamp).collect::<Vec<_>>(), burst[..2]);
             }
         }
     }
@@ -444,26 +493,160 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
         .unwrap_or_else(|e| panic!("{name}: flush: {e}"));
     if let Some(got) = rig.received(&mut sink) {
         assert_eq!(
-            got.iter().map(|g| g.0).collect::<Vec<_>>(),
+            got.iter().map(|g| g.stamp).collect::<Vec<_>>(),
             burst[2..],
             "{name}: the burst's order"
         );
-        assert_eq!(got[2].1, vec![0.4, -0.1, 0.0]);
+        assert_eq!(got[2].values, vec![0.4, -0.1, 0.0]);
     }
 
+    // A stop after writes: zeros, with the last step's stamp and the cause.
+    let last = burst[4];
+    sink.stop(&last, StopCause::AllocatorDead)
+        .unwrap_or_else(|e| panic!("{name}: stop: {e}"));
+    sink.flush()
+        .unwrap_or_else(|e| panic!("{name}: flush: {e}"));
+    if let Some(got) = rig.received(&mut sink) {
+        assert_eq!(
+            got,
+            vec![Arrived::stop(last, 3, StopCause::AllocatorDead)],
+            "{name}: a stop after writes"
+        );
+    }
+
+    // Zero on close.
+    let st = stamp(70, StepStatus::Running);
+    sink.write(&st, &[0.3, 0.3, 0.3])
+        .unwrap_or_else(|e| panic!("{name}: write: {e}"));
     sink.close()
         .unwrap_or_else(|e| panic!("{name}: close: {e}"));
     sink.close()
         .unwrap_or_else(|e| panic!("{name}: a second close must succeed: {e}"));
-    match sink.write(&stamp(70, StepStatus::Running), &[0.0; 3]) {
+    if let Some(got) = rig.received(&mut sink) {
+        assert_eq!(
+            got,
+            vec![
+                Arrived {
+                    stamp: st,
+                    values: vec![0.3; 3],
+                    stop: None
+                },
+                Arrived::stop(st, 3, StopCause::Shutdown)
+            ],
+            "{name}: close stops the thrusters, once"
+        );
+    }
+    match sink.write(&stamp(71, StepStatus::Running), &[0.0; 3]) {
         Err(AdapterError::Closed { .. }) => {}
         other => panic!("{name}: a write after close: {other:?}"),
     }
+    assert!(
+        matches!(
+            sink.stop(&st, StopCause::Deadline),
+            Err(AdapterError::Closed { .. })
+        ),
+        "{name}: a stop after close"
+    );
     assert!(
         matches!(sink.flush(), Err(AdapterError::Closed { .. })),
         "{name}: a flush after close"
     );
     drop(sink);
+
+    // A close after a stop adds none.
+    let mut sink = rig
+        .open(3)
+        .unwrap_or_else(|e| panic!("{name}: cannot open a sink of 3: {e}"));
+    sink.stop(&st, StopCause::Deadline)
+        .unwrap_or_else(|e| panic!("{name}: stop: {e}"));
+    sink.close()
+        .unwrap_or_else(|e| panic!("{name}: close: {e}"));
+    if let Some(got) = rig.received(&mut sink) {
+        assert_eq!(
+            got,
+            vec![Arrived::stop(st, 3, StopCause::Deadline)],
+            "{name}: a close after a stop"
+        );
+    }
+    drop(sink);
+
+    // Zero on the deadline, under the failsafe (the suite's own clock, in ns).
+    let sink = rig
+        .open(3)
+        .unwrap_or_else(|e| panic!("{name}: cannot open a sink of 3: {e}"));
+    let deadline = Duration::from_millis(400);
+    let ms = 1_000_000u64;
+    let mut failsafe = Failsafe::new(sink, deadline);
+    failsafe
+        .start()
+        .unwrap_or_else(|e| panic!("{name}: failsafe start: {e}"));
+    let t0 = 1_000 * ms;
+    let st = stamp(80, StepStatus::Running);
+    failsafe
+        .apply(&st, &[0.6, -0.6, 0.2], failsafe.until_from(t0))
+        .unwrap_or_else(|e| panic!("{name}: failsafe write: {e}"));
+    let seen = |rig: &mut R, failsafe: &mut Failsafe<R::Sink>| rig.received(failsafe.sink_mut());
+    if let Some(got) = seen(rig, &mut failsafe) {
+        assert_eq!(
+            got,
+            vec![
+                Arrived::stop(Stamp::default(), 3, StopCause::Start),
+                Arrived {
+                    stamp: st,
+                    values: vec![0.6, -0.6, 0.2],
+                    stop: None
+                }
+            ],
+            "{name}: the failsafe starts at rest, then writes"
+        );
+    }
+    for at in [t0 + 100 * ms, t0 + 399 * ms] {
+        assert_eq!(
+            failsafe.on_time(at).unwrap(),
+            None,
+            "{name}: fresh until the deadline"
+        );
+    }
+    if let Some(got) = seen(rig, &mut failsafe) {
+        assert!(
+            got.is_empty(),
+            "{name}: nothing before the deadline: {got:?}"
+        );
+    }
+    assert_eq!(
+        failsafe
+            .on_time(t0 + 400 * ms)
+            .unwrap_or_else(|e| panic!("{name}: failsafe stop: {e}")),
+        Some(StopCause::Deadline),
+        "{name}: stale at the deadline"
+    );
+    assert_eq!(
+        failsafe.on_time(t0 + 900 * ms).unwrap(),
+        None,
+        "{name}: once"
+    );
+    if let Some(got) = seen(rig, &mut failsafe) {
+        assert_eq!(
+            got,
+            vec![Arrived::stop(st, 3, StopCause::Deadline)],
+            "{name}: zero at the deadline"
+        );
+    }
+    let st = stamp(85, StepStatus::Running);
+    failsafe
+        .apply(&st, &[0.1, 0.1, 0.1], failsafe.until_from(t0 + 1000 * ms))
+        .unwrap_or_else(|e| panic!("{name}: failsafe write after a stop: {e}"));
+    failsafe
+        .close()
+        .unwrap_or_else(|e| panic!("{name}: failsafe close: {e}"));
+    if let Some(got) = seen(rig, &mut failsafe) {
+        assert_eq!(
+            got.iter().map(|g| g.stop).collect::<Vec<_>>(),
+            vec![None, Some(StopCause::Shutdown)],
+            "{name}: setpoints again, then zero on close"
+        );
+    }
+    drop(failsafe);
 
     // The smallest and the largest layouts.
     for n in [1, config::MAX_THRUSTERS] {
@@ -476,15 +659,23 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
         let want: Vec<f64> = (0..n)
             .map(|i| if i % 2 == 0 { 1.0 } else { -0.5 })
             .collect();
+        let st = stamp(80, StepStatus::TimeLimit);
         let applied = sink
-            .write(&stamp(80, StepStatus::TimeLimit), &values)
+            .write(&st, &values)
             .unwrap_or_else(|e| panic!("{name}: {n} thrusters: {e}"));
         assert_eq!(applied.as_slice(), want, "{name}: {n} thrusters");
+        sink.stop(&st, StopCause::Deadline)
+            .unwrap_or_else(|e| panic!("{name}: {n} thrusters: stop: {e}"));
         sink.flush()
             .unwrap_or_else(|e| panic!("{name}: flush: {e}"));
         if let Some(got) = rig.received(&mut sink) {
-            assert_eq!(got.len(), 1, "{name}: {n} thrusters");
-            assert_eq!(got[0].1, want, "{name}: {n} thrusters");
+            assert_eq!(got.len(), 2, "{name}: {n} thrusters");
+            assert_eq!(got[0].values, want, "{name}: {n} thrusters");
+            assert_eq!(
+                got[1],
+                Arrived::stop(st, n, StopCause::Deadline),
+                "{name}: {n} thrusters stop"
+            );
         }
         sink.close()
             .unwrap_or_else(|e| panic!("{name}: close: {e}"));

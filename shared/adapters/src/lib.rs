@@ -7,9 +7,10 @@
 //!   [`twin::TwinFrameSource`] (the vehicle twin's camera, over its iceoryx2 topic) and
 //!   [`replay::ReplaySource`] (a recorded dive: a folder of PGM/PNG frames and an index of times,
 //!   written by [`replay::DiveWriter`]; the format is in [`replay`]).
-//! - [`ThrusterSink`]: the thrusters' setpoints. Implementations: [`twin::TwinThrusterSink`] (the
-//!   twin's thrusters), [`record::RecordSink`] (a file of setpoints with their times) and
-//!   [`record::NullSink`] (discards them).
+//! - [`ThrusterSink`]: the thrusters' setpoints, and their failsafe stop. Implementations:
+//!   [`twin::TwinThrusterSink`] (the twin's thrusters), [`record::RecordSink`] (a file of setpoints
+//!   with their times) and [`record::NullSink`] (discards them). [`failsafe::Failsafe`] drives any
+//!   sink: it stops the thrusters when fresh setpoints stop coming within the deadline.
 //! - [`conformance`]: one suite per trait. Every implementation, and any later one (a real camera
 //!   driver, a real thruster board), passes the same suite: `tests/conformance.rs` runs it for each.
 //!
@@ -17,13 +18,15 @@
 //! so the protocol between the twin and its adapters is written once.
 
 pub mod conformance;
+pub mod failsafe;
 pub mod record;
 pub mod replay;
 pub mod twin;
 
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::ipc;
-pub use messages::{CableObservationData, Stamp, StepStatus};
+pub use messages::{CableObservationData, Stamp, StepStatus, StopCause};
+use model::bounds::Fixes;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -145,13 +148,13 @@ pub trait FrameSource {
     fn read(&self, now: Instant, out: &mut Frame) -> Result<Read, AdapterError>;
 }
 
-/// The setpoints as written: each made safe, and how many had to be changed.
+/// The setpoints as written: each under the rule for bad values, and what the rule changed.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Applied {
     pub values: [f64; config::MAX_THRUSTERS],
     pub count: usize,
-    /// Setpoints that were out of [-1, 1] (clipped) or not finite (0).
-    pub made_safe: usize,
+    /// Setpoints that were not finite (made 0) or out of [-1, 1] (clamped).
+    pub fixes: Fixes,
 }
 
 impl Applied {
@@ -160,14 +163,11 @@ impl Applied {
     }
 }
 
-/// A setpoint as a thruster may receive it: within [-1, 1]; NaN and infinities become 0 (a broken
-/// computation must not run a thruster at full power).
+/// A setpoint as a thruster may receive it, under the rule for bad values (`model::bounds`): within
+/// [-1, 1]; NaN and infinities become 0 (a broken computation must not run a thruster at full
+/// power).
 pub fn make_safe(value: f64) -> f64 {
-    if value.is_finite() {
-        value.clamp(-1.0, 1.0)
-    } else {
-        0.0
-    }
+    model::bounds::unit(value).0
 }
 
 /// The error of a write or flush after `close`, naming the sink.
@@ -177,7 +177,8 @@ pub fn closed(sink: &(impl ThrusterSink + ?Sized)) -> AdapterError {
     }
 }
 
-/// Checks the count against the thrusters and makes every setpoint safe (see [`make_safe`]).
+/// Checks the count against the thrusters and puts every setpoint under the rule (see
+/// [`make_safe`]), counting what it changed.
 pub fn apply(adapter: &str, thrusters: usize, values: &[f64]) -> Result<Applied, AdapterError> {
     if values.len() != thrusters {
         return Err(AdapterError::Count {
@@ -189,14 +190,10 @@ pub fn apply(adapter: &str, thrusters: usize, values: &[f64]) -> Result<Applied,
     let mut out = Applied {
         values: [0.0; config::MAX_THRUSTERS],
         count: thrusters,
-        made_safe: 0,
+        fixes: Fixes::default(),
     };
     for (o, &v) in out.values.iter_mut().zip(values) {
-        *o = make_safe(v);
-        // -0.0 == 0.0: a sign change of zero is not a change.
-        if *o != v {
-            out.made_safe += 1;
-        }
+        *o = out.fixes.note(model::bounds::unit(v));
     }
     Ok(out)
 }
@@ -215,12 +212,16 @@ pub fn check_thrusters(adapter: &str, thrusters: usize) -> Result<(), AdapterErr
 }
 
 /// The thrusters: setpoints in [-1, 1], one per thruster of the layout, each with the stamp of the
-/// step it answers.
+/// step it answers; and their failsafe stop.
 ///
 /// The contract ([`conformance::thruster_sink`] checks it): values out of [-1, 1] are clipped and
 /// NaN or infinite ones become 0 before they reach a thruster; a wrong number of setpoints is an
-/// error and nothing is written; what is written arrives in order; `flush` pushes everything out;
-/// `close` is idempotent, and writing after it is an error.
+/// error and nothing is written; what is written arrives in order; `flush` pushes everything out.
+/// `stop` drives every thruster to 0 at once, marked as a stop with its cause (so a device matching
+/// answers to its frames never takes it for one), before any write as after; `close` stops the
+/// thrusters (unless the last thing sent was a stop) and releases the device, is idempotent, and
+/// writing after it is an error. Driven by [`failsafe::Failsafe`], a sink's thrusters stop within
+/// the deadline once fresh setpoints stop coming (the suite checks that with every sink too).
 pub trait ThrusterSink {
     /// What the sink is, for logs and errors.
     fn describe(&self) -> String;
@@ -228,10 +229,53 @@ pub trait ThrusterSink {
     fn thrusters(&self) -> usize;
     /// Writes the setpoints answering the step of `stamp`.
     fn write(&mut self, stamp: &Stamp, setpoints: &[f64]) -> Result<Applied, AdapterError>;
+    /// Drives every thruster to 0 now, marked as a stop for `cause`, stamped with `stamp` (the last
+    /// step written, or an empty stamp before any).
+    fn stop(&mut self, stamp: &Stamp, cause: StopCause) -> Result<(), AdapterError>;
     /// Pushes out what is buffered.
     fn flush(&mut self) -> Result<(), AdapterError>;
-    /// Flushes and releases the device; later writes are refused.
+    /// Stops the thrusters ([`StopCause::Shutdown`]) unless the last thing sent was a stop, flushes
+    /// and releases the device; later writes are refused.
     fn close(&mut self) -> Result<(), AdapterError>;
+}
+
+/// A sink chosen at run time (`Box<dyn ThrusterSink>`) is a sink.
+impl<S: ThrusterSink + ?Sized> ThrusterSink for Box<S> {
+    fn describe(&self) -> String {
+        (**self).describe()
+    }
+    fn thrusters(&self) -> usize {
+        (**self).thrusters()
+    }
+    fn write(&mut self, stamp: &Stamp, setpoints: &[f64]) -> Result<Applied, AdapterError> {
+        (**self).write(stamp, setpoints)
+    }
+    fn stop(&mut self, stamp: &Stamp, cause: StopCause) -> Result<(), AdapterError> {
+        (**self).stop(stamp, cause)
+    }
+    fn flush(&mut self) -> Result<(), AdapterError> {
+        (**self).flush()
+    }
+    fn close(&mut self) -> Result<(), AdapterError> {
+        (**self).close()
+    }
+}
+
+/// What a sink has sent last, to know whether `close` must stop the thrusters first.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LastSent {
+    pub stamp: Stamp,
+    pub stopped: bool,
+}
+
+impl LastSent {
+    /// Records a write (`stopped = false`) or a stop.
+    pub fn sent(&mut self, stamp: &Stamp, stopped: bool) {
+        *self = LastSent {
+            stamp: *stamp,
+            stopped,
+        };
+    }
 }
 
 /// Why an adapter could not do its job. Every variant names the adapter, file or frame concerned.
@@ -300,6 +344,10 @@ mod tests {
 
     #[test]
     fn unsafe_setpoints_are_made_safe() {
+        let fixes = |non_finite, clamped| Fixes {
+            non_finite,
+            clamped,
+        };
         assert_eq!(make_safe(0.3), 0.3);
         assert_eq!(make_safe(1.0), 1.0);
         assert_eq!(make_safe(1.7), 1.0);
@@ -309,7 +357,7 @@ mod tests {
         assert_eq!(make_safe(f64::NEG_INFINITY), 0.0);
         let a = apply("t", 3, &[0.5, 2.0, f64::NAN]).unwrap();
         assert_eq!(a.as_slice(), &[0.5, 1.0, 0.0]);
-        assert_eq!(a.made_safe, 2);
+        assert_eq!(a.fixes, fixes(1, 1));
         assert!(matches!(
             apply("t", 3, &[0.0; 2]),
             Err(AdapterError::Count {

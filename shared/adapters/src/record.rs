@@ -1,36 +1,46 @@
 //! Thruster sinks that drive no thruster: [`RecordSink`] writes every setpoint with its times to a
 //! file (a dry run on the bench, a log of a dive), [`NullSink`] discards them.
 //!
-//! A record file is text, one line per write:
+//! A record file is text, one line per write or stop:
 //!
 //! ```text
-//! # cabletrack thruster record v1
-//! seq,time_ns,trial,step,status,written_unix_ns,port,starboard,lateral
-//! 41,8000000000,0,40,running,1763781234567890123,0.61,0.2,-0.05
+//! # cabletrack thruster record v2
+//! seq,epoch,time_ns,clock_ns,trial,step,status,written_unix_ns,stop,port,starboard,lateral
+//! 41,3921,8000000000,5120000000000,0,40,running,1763781234567890123,,0.61,0.2,-0.05
+//! 41,3921,8000000000,5120000000000,0,40,running,1763781234967890123,deadline,0,0,0
 //! ```
 //!
-//! `seq`, `time_ns` (the vehicle clock), `trial`, `step` and `status` (`running`, `lost`,
-//! `time_limit`) are the stamp of the step the setpoints answer; `written_unix_ns` is when the sink
-//! wrote them (the wall clock); then one column per thruster, named after the layout, with the
+//! `seq`, `epoch`, `time_ns` (the frame source's clock), `clock_ns` (the vehicle clock), `trial`,
+//! `step` and `status` (`running`, `lost`, `time_limit`) are the stamp of the step the setpoints
+//! answer (for a stop: the last step written);
+//! `written_unix_ns` is when the sink wrote them (the wall clock, for people reading the file);
+//! `stop` is empty for a step's setpoints, or the cause of a failsafe stop (`start`, `deadline`,
+//! `shutdown`, `allocator_dead`); then one column per thruster, named after the layout, with the
 //! setpoints as written (made safe). Floats are written in Rust's shortest round-trip form, so
 //! [`read_record`] gives back the very values.
 
-use crate::{AdapterError, Applied, Stamp, StepStatus, ThrusterSink, apply, check_thrusters};
+use crate::{
+    AdapterError, Applied, LastSent, Stamp, StepStatus, StopCause, ThrusterSink, apply,
+    check_thrusters,
+};
 use std::io::{BufRead, BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 /// The first line of a record file.
-pub const RECORD_MAGIC: &str = "# cabletrack thruster record v1";
+pub const RECORD_MAGIC: &str = "# cabletrack thruster record v2";
 
 /// The columns before the setpoints.
-const STAMP_COLUMNS: [&str; 6] = [
+const STAMP_COLUMNS: [&str; 9] = [
     "seq",
+    "epoch",
     "time_ns",
+    "clock_ns",
     "trial",
     "step",
     "status",
     "written_unix_ns",
+    "stop",
 ];
 
 /// A status as written in files.
@@ -57,6 +67,7 @@ pub struct RecordSink {
     path: PathBuf,
     file: Option<BufWriter<std::fs::File>>,
     thrusters: usize,
+    last: LastSent,
 }
 
 impl RecordSink {
@@ -81,6 +92,7 @@ impl RecordSink {
             path: path.to_owned(),
             file: Some(file),
             thrusters: names.len(),
+            last: LastSent::default(),
         })
     }
 
@@ -93,6 +105,40 @@ impl RecordSink {
             path: self.path.clone(),
             source,
         }
+    }
+
+    /// Writes one line: the stamp, the time, the stop's cause (if a stop), the values.
+    fn line(
+        &mut self,
+        stamp: &Stamp,
+        stop: Option<StopCause>,
+        values: &[f64],
+    ) -> Result<(), AdapterError> {
+        let written = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64);
+        let mut line = format!(
+            "{},{},{},{},{},{},{},{written},{}",
+            stamp.seq,
+            stamp.epoch,
+            stamp.time_ns,
+            stamp.clock_ns,
+            stamp.episode,
+            stamp.step,
+            status_name(stamp.status()),
+            stop.map_or("", StopCause::name),
+        );
+        for v in values {
+            line.push_str(&format!(",{v}"));
+        }
+        line.push('\n');
+        let Some(file) = self.file.as_mut() else {
+            return Err(crate::closed(self));
+        };
+        let result = file.write_all(line.as_bytes());
+        result.map_err(|e| self.write_err(e))?;
+        self.last.sent(stamp, stop.is_some());
+        Ok(())
     }
 }
 
@@ -110,28 +156,12 @@ impl ThrusterSink for RecordSink {
             return Err(crate::closed(self));
         }
         let applied = apply(&self.describe(), self.thrusters, setpoints)?;
-        let written = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos() as u64);
-        let mut line = format!(
-            "{},{},{},{},{},{written}",
-            stamp.seq,
-            stamp.time_ns,
-            stamp.episode,
-            stamp.step,
-            status_name(stamp.status())
-        );
-        for v in applied.as_slice() {
-            line.push_str(&format!(",{v}"));
-        }
-        line.push('\n');
-        let result = self
-            .file
-            .as_mut()
-            .expect("checked above")
-            .write_all(line.as_bytes());
-        result.map_err(|e| self.write_err(e))?;
+        self.line(stamp, None, applied.as_slice())?;
         Ok(applied)
+    }
+
+    fn stop(&mut self, stamp: &Stamp, cause: StopCause) -> Result<(), AdapterError> {
+        self.line(stamp, Some(cause), &vec![0.0; self.thrusters])
     }
 
     fn flush(&mut self) -> Result<(), AdapterError> {
@@ -143,6 +173,13 @@ impl ThrusterSink for RecordSink {
     }
 
     fn close(&mut self) -> Result<(), AdapterError> {
+        if self.file.is_none() {
+            return Ok(());
+        }
+        if !self.last.stopped {
+            let stamp = self.last.stamp;
+            self.stop(&stamp, StopCause::Shutdown)?;
+        }
         let Some(mut file) = self.file.take() else {
             return Ok(());
         };
@@ -165,6 +202,8 @@ impl Drop for RecordSink {
 pub struct Record {
     pub stamp: Stamp,
     pub written_unix_ns: u64,
+    /// The cause of a failsafe stop; `None` for a step's setpoints.
+    pub stop: Option<StopCause>,
     pub values: Vec<f64>,
 }
 
@@ -232,7 +271,7 @@ pub fn read_record(path: &Path) -> Result<(Vec<String>, Vec<Record>), AdapterErr
             u32::try_from(int(i)?).map_err(|e| bad(n, format!("{}: {e}", STAMP_COLUMNS[i])))
         };
         let status =
-            parse_status(cols[4]).ok_or_else(|| bad(n, format!("unknown status `{}`", cols[4])))?;
+            parse_status(cols[6]).ok_or_else(|| bad(n, format!("unknown status `{}`", cols[6])))?;
         let mut values = Vec::with_capacity(names.len());
         for (j, c) in cols[STAMP_COLUMNS.len()..].iter().enumerate() {
             values.push(
@@ -240,9 +279,18 @@ pub fn read_record(path: &Path) -> Result<(Vec<String>, Vec<Record>), AdapterErr
                     .map_err(|e| bad(n, format!("setpoint of {} `{c}`: {e}", names[j])))?,
             );
         }
+        let stop = match cols[8] {
+            "" => None,
+            word => Some(
+                StopCause::parse(word)
+                    .ok_or_else(|| bad(n, format!("unknown stop cause `{word}`")))?,
+            ),
+        };
+        let stamp = Stamp::new(int(0)?, int(2)?, small(4)?, small(5)?, status);
         records.push(Record {
-            stamp: Stamp::new(int(0)?, int(1)?, small(2)?, small(3)?, status),
-            written_unix_ns: int(5)?,
+            stamp: stamp.timed(small(1)?, int(3)?),
+            written_unix_ns: int(7)?,
+            stop,
             values,
         });
     }
@@ -256,6 +304,8 @@ pub fn read_record(path: &Path) -> Result<(Vec<String>, Vec<Record>), AdapterErr
 pub struct NullSink {
     thrusters: usize,
     written: u64,
+    stops: u64,
+    last: LastSent,
     closed: bool,
 }
 
@@ -265,6 +315,8 @@ impl NullSink {
         Ok(NullSink {
             thrusters,
             written: 0,
+            stops: 0,
+            last: LastSent::default(),
             closed: false,
         })
     }
@@ -272,6 +324,11 @@ impl NullSink {
     /// Writes accepted so far.
     pub fn written(&self) -> u64 {
         self.written
+    }
+
+    /// Stops so far.
+    pub fn stops(&self) -> u64 {
+        self.stops
     }
 }
 
@@ -284,13 +341,23 @@ impl ThrusterSink for NullSink {
         self.thrusters
     }
 
-    fn write(&mut self, _stamp: &Stamp, setpoints: &[f64]) -> Result<Applied, AdapterError> {
+    fn write(&mut self, stamp: &Stamp, setpoints: &[f64]) -> Result<Applied, AdapterError> {
         if self.closed {
             return Err(crate::closed(self));
         }
         let applied = apply("null thrusters", self.thrusters, setpoints)?;
         self.written += 1;
+        self.last.sent(stamp, false);
         Ok(applied)
+    }
+
+    fn stop(&mut self, stamp: &Stamp, _cause: StopCause) -> Result<(), AdapterError> {
+        if self.closed {
+            return Err(crate::closed(self));
+        }
+        self.stops += 1;
+        self.last.sent(stamp, true);
+        Ok(())
     }
 
     fn flush(&mut self) -> Result<(), AdapterError> {
@@ -301,6 +368,13 @@ impl ThrusterSink for NullSink {
     }
 
     fn close(&mut self) -> Result<(), AdapterError> {
+        if self.closed {
+            return Ok(());
+        }
+        if !self.last.stopped {
+            let stamp = self.last.stamp;
+            self.stop(&stamp, StopCause::Shutdown)?;
+        }
         self.closed = true;
         Ok(())
     }

@@ -10,11 +10,12 @@
 //! `time_ns`, the trial as `episode`, the step and status; the size; the true line) and the image.
 //! Setpoints are a [`ThrusterSetpoints`] whose stamp is the one of the step they answer: the twin
 //! matches them to its frame by the stamp's time, which the vehicle side copies unchanged (its `seq`
-//! is the camera's own).
+//! is the camera's own). A failsafe stop is a [`ThrusterSetpoints`] of zeros with its cause in
+//! `stop`: never an answer to a frame.
 
 use crate::{
-    AdapterError, Applied, Frame, FrameMeta, FrameSource, Read, SeqOrigin, ThrusterSink, Wake,
-    apply, check_thrusters,
+    AdapterError, Applied, Frame, FrameMeta, FrameSource, LastSent, Read, SeqOrigin, StopCause,
+    ThrusterSink, Wake, apply, check_thrusters,
 };
 use iceoryx2::prelude::*;
 use messages::topics::hardware::{self, TWIN, TWIN_FRAME, TWIN_THRUSTERS};
@@ -247,10 +248,11 @@ impl FrameSource for TwinFrameSource {
     }
 }
 
-/// The twin's thrusters as the vehicle's allocator writes them.
+/// The twin's thrusters as the vehicle's thruster driver writes them.
 pub struct TwinThrusterSink {
     out: Outbox<ThrusterSetpoints>,
     thrusters: usize,
+    last: LastSent,
     closed: bool,
 }
 
@@ -261,6 +263,7 @@ impl TwinThrusterSink {
         Ok(TwinThrusterSink {
             out: Outbox::open_service(node, &service, &TWIN_THRUSTERS)?,
             thrusters,
+            last: LastSent::default(),
             closed: false,
         })
     }
@@ -285,16 +288,30 @@ impl ThrusterSink for TwinThrusterSink {
             return Err(crate::closed(self));
         }
         let applied = apply("twin thrusters", self.thrusters, setpoints)?;
-        let mut msg = ThrusterSetpoints {
+        self.out.send(ThrusterSetpoints {
             stamp: *stamp,
             count: applied.count as u32,
-            missing: 0,
-            values: [0.0; config::MAX_THRUSTERS],
+            values: applied.values,
             scale: 1.0,
-        };
-        msg.values = applied.values;
-        self.out.send(msg)?;
+            ..Default::default()
+        })?;
+        self.last.sent(stamp, false);
         Ok(applied)
+    }
+
+    fn stop(&mut self, stamp: &Stamp, cause: StopCause) -> Result<(), AdapterError> {
+        if self.closed {
+            return Err(crate::closed(self));
+        }
+        self.out.send(ThrusterSetpoints {
+            stamp: *stamp,
+            count: self.thrusters as u32,
+            stop: cause as u32,
+            scale: 1.0,
+            ..Default::default()
+        })?;
+        self.last.sent(stamp, true);
+        Ok(())
     }
 
     fn flush(&mut self) -> Result<(), AdapterError> {
@@ -306,6 +323,13 @@ impl ThrusterSink for TwinThrusterSink {
     }
 
     fn close(&mut self) -> Result<(), AdapterError> {
+        if self.closed {
+            return Ok(());
+        }
+        if !self.last.stopped {
+            let stamp = self.last.stamp;
+            self.stop(&stamp, StopCause::Shutdown)?;
+        }
         self.closed = true;
         Ok(())
     }

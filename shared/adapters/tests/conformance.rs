@@ -2,7 +2,7 @@
 //! (`adapters::conformance`). The twin's adapters run over real iceoryx2 topics, each test in its own
 //! namespace (testkit), with the twin's side of the wire played by the test.
 
-use adapters::conformance::{self, SinkRig, SourceRig, sample_frames};
+use adapters::conformance::{self, Arrived, SinkRig, SourceRig, sample_frames};
 use adapters::record::{NullSink, RecordSink, read_record};
 use adapters::replay::{DiveWriter, ImageFormat, Pacing, ReplaySource};
 use adapters::twin::{TwinCameraPort, TwinFrameSource, TwinThrusterPort, TwinThrusterSink};
@@ -303,11 +303,15 @@ impl SinkRig for TwinSinkRig {
         TwinThrusterSink::open(self.probe.node(), thrusters)
     }
 
-    fn received(&mut self, _sink: &mut TwinThrusterSink) -> Option<Vec<(Stamp, Vec<f64>)>> {
+    fn received(&mut self, _sink: &mut TwinThrusterSink) -> Option<Vec<Arrived>> {
         let port = self.port.as_ref().unwrap();
         let mut got = Vec::new();
         while let Some(m) = port.receive().unwrap() {
-            got.push((m.stamp, m.as_slice().to_vec()));
+            got.push(Arrived {
+                stamp: m.stamp,
+                values: m.as_slice().to_vec(),
+                stop: m.stop_cause(),
+            });
         }
         Some(got)
     }
@@ -350,11 +354,15 @@ impl SinkRig for RecordRig {
         RecordSink::create(&self.path, &names)
     }
 
-    fn received(&mut self, _sink: &mut RecordSink) -> Option<Vec<(Stamp, Vec<f64>)>> {
+    fn received(&mut self, _sink: &mut RecordSink) -> Option<Vec<Arrived>> {
         let (_, records) = read_record(&self.path).unwrap();
         let new = records[self.seen..]
             .iter()
-            .map(|r| (r.stamp, r.values.clone()))
+            .map(|r| Arrived {
+                stamp: r.stamp,
+                values: r.values.clone(),
+                stop: r.stop,
+            })
             .collect();
         self.seen = records.len();
         Some(new)
@@ -384,7 +392,7 @@ impl SinkRig for NullRig {
         NullSink::new(thrusters)
     }
 
-    fn received(&mut self, _sink: &mut NullSink) -> Option<Vec<(Stamp, Vec<f64>)>> {
+    fn received(&mut self, _sink: &mut NullSink) -> Option<Vec<Arrived>> {
         None
     }
 }
@@ -401,14 +409,17 @@ fn a_record_file_keeps_the_layout_and_the_times() {
     let path = tmp.path().join("dive.csv");
     let names: Vec<String> = ["port", "starboard", "lateral"].map(String::from).to_vec();
     let mut sink = RecordSink::create(&path, &names).unwrap();
-    let st = Stamp::new(41, 8_000_000_000, 3, 40, StepStatus::TimeLimit);
+    let st = Stamp::new(41, 8_000_000_000, 3, 40, StepStatus::TimeLimit).timed(9, 123_456);
     adapters::ThrusterSink::write(&mut sink, &st, &[0.61, 0.2, -0.05]).unwrap();
-    drop(sink); // closes
+    drop(sink); // closes: stops the thrusters
     let (got_names, records) = read_record(&path).unwrap();
     assert_eq!(got_names, names);
-    assert_eq!(records.len(), 1);
+    assert_eq!(records.len(), 2);
     assert_eq!(records[0].stamp, st);
     assert_eq!(records[0].values, vec![0.61, 0.2, -0.05]);
+    assert_eq!(records[0].stop, None);
+    assert_eq!(records[1].stop, Some(adapters::StopCause::Shutdown));
+    assert_eq!(records[1].values, vec![0.0; 3]);
     assert!(records[0].written_unix_ns > 1_600_000_000_000_000_000);
 
     let text = std::fs::read_to_string(&path).unwrap();
@@ -417,6 +428,13 @@ fn a_record_file_keeps_the_layout_and_the_times() {
         Err(AdapterError::Format {
             line: 3, reason, ..
         }) => assert!(reason.contains("sunk")),
+        other => panic!("{other:?}"),
+    }
+    std::fs::write(&path, text.replace("shutdown", "panic")).unwrap();
+    match read_record(&path) {
+        Err(AdapterError::Format {
+            line: 4, reason, ..
+        }) => assert!(reason.contains("panic")),
         other => panic!("{other:?}"),
     }
 }

@@ -4,7 +4,7 @@ use crate::{Dof, Invalid, Validate, in_range, join, positive};
 use serde::{Deserialize, Serialize};
 
 /// A value for each learned DOF.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PerDof<T> {
     pub sway: T,
@@ -67,6 +67,10 @@ pub struct LearningParams {
     pub policy: PolicyParams,
     pub nac: NacParams,
     pub gpomdp: GpomdpParams,
+    /// Step two: how the behaviours evaluate their policy on the vehicle.
+    pub evaluation: EvaluationParams,
+    /// Step two: what keeps online learning on the vehicle safe.
+    pub safety: SafetyParams,
 }
 
 impl LearningParams {
@@ -83,7 +87,17 @@ impl Validate for LearningParams {
     fn validate(&self, key: &str) -> Result<(), Invalid> {
         self.policy.validate(&join(key, "policy"))?;
         self.nac.validate(&join(key, "nac"))?;
-        self.gpomdp.validate(&join(key, "gpomdp"))
+        self.gpomdp.validate(&join(key, "gpomdp"))?;
+        self.evaluation.validate(&join(key, "evaluation"))?;
+        self.safety.validate(&join(key, "safety"))?;
+        if self.safety.rollback.enabled && self.evaluation.trials == 0 {
+            return Err(Invalid::new(
+                join(key, "safety.rollback.enabled"),
+                true,
+                "keeping the best policy needs evaluations: set evaluation.trials > 0 or turn it off",
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -205,5 +219,149 @@ impl Validate for GpomdpParams {
         positive(key, "alpha.sway", self.alpha.sway)?;
         positive(key, "alpha.yaw", self.alpha.yaw)?;
         in_range(key, "beta", self.beta, 0.0, 1.0)
+    }
+}
+
+/// Step two's evaluations: the behaviours alternate `trials` evaluation trials, in which the policy
+/// acts without learning, and `learning_trials` learning trials, starting with an evaluation (the
+/// policy they were given). In evaluation trial `j` of every evaluation the exploration noise is the
+/// same stream, so the returns of two evaluations differ by the policies only (common random numbers);
+/// an evaluation is one round of the vehicle's start marks (the twin's `trials.cycle`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvaluationParams {
+    /// Evaluation trials per evaluation; 0: no evaluations, every trial learns.
+    pub trials: u32,
+    /// Learning trials between two evaluations.
+    pub learning_trials: u32,
+}
+
+impl Default for EvaluationParams {
+    fn default() -> Self {
+        EvaluationParams {
+            trials: 5,
+            learning_trials: 5,
+        }
+    }
+}
+
+impl Validate for EvaluationParams {
+    fn validate(&self, key: &str) -> Result<(), Invalid> {
+        in_range(key, "trials", self.trials as f64, 0.0, 1.0e4)?;
+        in_range(
+            key,
+            "learning_trials",
+            self.learning_trials as f64,
+            1.0,
+            1.0e6,
+        )
+    }
+}
+
+/// Step two's safety layer, each part switchable: a bound on every actor update, a guard keeping the
+/// gains in a set the identified model says is stable with a margin, and keeping the best policy.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SafetyParams {
+    pub trust_region: TrustRegionParams,
+    pub stability: StabilityParams,
+    pub rollback: RollbackParams,
+}
+
+impl Validate for SafetyParams {
+    fn validate(&self, key: &str) -> Result<(), Invalid> {
+        let k = join(key, "trust_region");
+        positive(&k, "max_action_change", self.trust_region.max_action_change)?;
+        in_range(
+            &k,
+            "max_action_change",
+            self.trust_region.max_action_change,
+            0.0,
+            100.0,
+        )?;
+        let k = join(key, "stability");
+        in_range(&k, "gain_margin", self.stability.gain_margin, 1.0, 100.0)?;
+        in_range(
+            &k,
+            "delay_frames",
+            self.stability.delay_frames as f64,
+            0.0,
+            MAX_GUARD_DELAY as f64,
+        )?;
+        in_range(&k, "max_radius", self.stability.max_radius, 0.0, 1.0)?;
+        positive(&k, "max_radius", self.stability.max_radius)?;
+        in_range(
+            &join(key, "rollback"),
+            "tolerance",
+            self.rollback.tolerance,
+            0.0,
+            10.0,
+        )
+    }
+}
+
+/// The longest extra delay the stability guard can assume, in control periods.
+pub const MAX_GUARD_DELAY: u32 = 10;
+
+/// A trust region on each actor update: the mean action may change by at most `max_action_change`
+/// anywhere in the observation box, `|dK_0| m_0 + |dK_1| m_1 <= max_action_change` (a longer step is
+/// shortened along its direction). With the policy's fixed sigma, that bounds the largest KL
+/// divergence between successive policies over the box by `max_action_change^2 / (2 sigma^2)`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrustRegionParams {
+    pub enabled: bool,
+    pub max_action_change: f64,
+}
+
+/// The stability guard: an actor update is refused when its gain leaves the set in which the
+/// identified linear model of the DOF (discretised at the sample time), with the loop gain times
+/// `gain_margin` and `delay_frames` periods of extra delay, has a closed-loop spectral radius of at
+/// most `max_radius`; a gain already outside may only move towards it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StabilityParams {
+    pub enabled: bool,
+    pub gain_margin: f64,
+    pub delay_frames: u32,
+    pub max_radius: f64,
+}
+
+/// Keep the best: after every evaluation, a policy whose evaluated return is worse than the best so
+/// far by more than `tolerance` times the best's magnitude is replaced by the best, and learning goes
+/// on from there (its statistics, gathered under the replaced policy, are dropped).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RollbackParams {
+    pub enabled: bool,
+    pub tolerance: f64,
+}
+
+impl Default for TrustRegionParams {
+    fn default() -> Self {
+        TrustRegionParams {
+            enabled: true,
+            max_action_change: 0.05,
+        }
+    }
+}
+
+impl Default for StabilityParams {
+    fn default() -> Self {
+        StabilityParams {
+            enabled: true,
+            gain_margin: 2.0,
+            delay_frames: 1,
+            max_radius: 1.0,
+        }
+    }
+}
+
+impl Default for RollbackParams {
+    fn default() -> Self {
+        RollbackParams {
+            enabled: true,
+            tolerance: 0.02,
+        }
     }
 }

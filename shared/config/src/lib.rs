@@ -18,7 +18,8 @@ mod vision;
 
 pub use error::{ConfigError, Invalid};
 pub use learning::{
-    GpomdpParams, LearningParams, MAX_ANGLE_LAG, NacParams, PerDof, PolicyParams, Preset,
+    EvaluationParams, GpomdpParams, LearningParams, MAX_ANGLE_LAG, MAX_GUARD_DELAY, NacParams,
+    PerDof, PolicyParams, Preset, RollbackParams, SafetyParams, StabilityParams, TrustRegionParams,
 };
 pub use scenario::{
     CableParams, CameraParams, DofModel, MAX_THRUSTERS, ModelParams, ObservationLimits, PoolParams,
@@ -26,7 +27,8 @@ pub use scenario::{
 };
 pub use twin::{
     AsymmetryParams, CurrentParams, DampingParams, DeadBandParams, DofDamping, DropParams,
-    FrameParams, LagParams, MountParams, ThrusterGap, TrialParams, TwinParams,
+    FrameParams, GainParams, LagParams, LatencyParams, MAX_LATENCY_FRAMES, MountParams,
+    ThrusterGap, TrialParams, TwinParams,
 };
 pub use vision::{
     BlurParams, CablePolarity, ClutterParams, LightingParams, NoiseParams, PerceptionParams,
@@ -37,7 +39,9 @@ use serde::de::DeserializeOwned;
 use std::path::Path;
 
 /// The two degrees of freedom that are learned.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Dof {
     Sway,

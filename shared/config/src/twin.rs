@@ -19,6 +19,7 @@ pub struct TwinParams {
     pub current: CurrentParams,
     pub camera: MountParams,
     pub frames: FrameParams,
+    pub latency: LatencyParams,
     /// The twin camera's image: its own effects, harsher than the simulator's `[render]`.
     pub render: RenderParams,
 }
@@ -68,16 +69,34 @@ impl DofDamping {
     }
 }
 
-/// The thrusters as they are: slow, with a dead band, weaker in reverse, stopped by a watchdog.
+/// The thrusters as they are: stronger or weaker than identified, slow, with a dead band, weaker in
+/// reverse, stopped by a watchdog.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ThrusterGap {
+    pub gain: GainParams,
     pub lag: LagParams,
     pub dead_band: DeadBandParams,
     pub asymmetry: AsymmetryParams,
     /// Thrusters stop when no setpoints have arrived for this long (twin time, s); until then they
     /// hold the last setpoints (a dropped frame gets no answer).
     pub watchdog_s: f64,
+}
+
+/// Thrust per unit of setpoint against the identified model's: `factor` > 1 is a vehicle more
+/// responsive than identified (the identification underestimated its thrust), < 1 a weaker one.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GainParams {
+    pub enabled: bool,
+    pub factor: f64,
+}
+
+impl GainParams {
+    /// The thrust factor; 1 when disabled.
+    pub fn factor(&self) -> f64 {
+        if self.enabled { self.factor } else { 1.0 }
+    }
 }
 
 /// First-order lag: the thrust follows its setpoint with this time constant.
@@ -168,6 +187,29 @@ impl DropParams {
     }
 }
 
+/// Camera-to-command latency: exposure, transfer and processing take time, so the setpoints answering
+/// a frame reach the thrusters `frames` control periods after the frame was taken instead of at once.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LatencyParams {
+    pub enabled: bool,
+    pub frames: u32,
+}
+
+impl LatencyParams {
+    /// The periods an answer waits before it is applied; 0 when disabled.
+    pub fn periods(&self) -> usize {
+        if self.enabled {
+            self.frames as usize
+        } else {
+            0
+        }
+    }
+}
+
+/// The longest camera-to-command latency the twin models, in control periods.
+pub const MAX_LATENCY_FRAMES: u32 = 10;
+
 impl Default for TwinParams {
     fn default() -> Self {
         TwinParams {
@@ -177,6 +219,7 @@ impl Default for TwinParams {
             current: CurrentParams::default(),
             camera: MountParams::default(),
             frames: FrameParams::default(),
+            latency: LatencyParams::default(),
             render: TwinParams::default_render(),
         }
     }
@@ -200,12 +243,14 @@ impl TwinParams {
     pub fn ideal() -> Self {
         let mut t = TwinParams::default();
         t.damping.enabled = false;
+        t.thrusters.gain.enabled = false;
         t.thrusters.lag.enabled = false;
         t.thrusters.dead_band.enabled = false;
         t.thrusters.asymmetry.enabled = false;
         t.current.enabled = false;
         t.camera.enabled = false;
         t.frames.dropped.enabled = false;
+        t.latency.enabled = false;
         t.render = RenderParams::clean();
         t
     }
@@ -244,6 +289,12 @@ impl Default for DampingParams {
 impl Default for ThrusterGap {
     fn default() -> Self {
         ThrusterGap {
+            // Off by default: the default twin's thrust is the identified one (config/twin-harsh.toml
+            // turns it on).
+            gain: GainParams {
+                enabled: false,
+                factor: 2.5,
+            },
             lag: LagParams {
                 enabled: true,
                 time_constant_s: 0.5,
@@ -258,6 +309,12 @@ impl Default for ThrusterGap {
             },
             watchdog_s: 1.0,
         }
+    }
+}
+
+impl Default for GainParams {
+    fn default() -> Self {
+        ThrusterGap::default().gain
     }
 }
 
@@ -299,6 +356,16 @@ impl Default for MountParams {
     }
 }
 
+impl Default for LatencyParams {
+    fn default() -> Self {
+        // Off by default: the default twin answers each frame within its period.
+        LatencyParams {
+            enabled: false,
+            frames: 2,
+        }
+    }
+}
+
 impl Default for DropParams {
     fn default() -> Self {
         DropParams {
@@ -328,6 +395,8 @@ impl Validate for TwinParams {
 
         let t = &self.thrusters;
         let k = join(key, "thrusters");
+        positive(&join(&k, "gain"), "factor", t.gain.factor)?;
+        in_range(&join(&k, "gain"), "factor", t.gain.factor, 0.0, 10.0)?;
         positive(&join(&k, "lag"), "time_constant_s", t.lag.time_constant_s)?;
         in_range(
             &join(&k, "lag"),
@@ -375,6 +444,14 @@ impl Validate for TwinParams {
             0.9,
         )?;
 
+        in_range(
+            &join(key, "latency"),
+            "frames",
+            self.latency.frames as f64,
+            0.0,
+            MAX_LATENCY_FRAMES as f64,
+        )?;
+
         self.render.validate(&join(key, "render"))
     }
 }
@@ -405,6 +482,18 @@ mod tests {
     }
 
     #[test]
+    fn the_harsh_twin_is_the_default_with_a_responsive_vehicle_lag_and_latency() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/twin-harsh.toml");
+        let t: TwinParams = crate::load(&path).unwrap();
+        let mut want = TwinParams::default();
+        want.thrusters.gain.enabled = true;
+        want.thrusters.lag.time_constant_s = 0.4;
+        want.latency.enabled = true;
+        assert_eq!(t, want);
+        assert_eq!((t.thrusters.gain.factor(), t.latency.periods()), (2.5, 2));
+    }
+
+    #[test]
     fn defaults_are_valid_and_harsher_than_the_simulators_images() {
         TwinParams::default().validate("").unwrap();
         TwinParams::ideal().validate("").unwrap();
@@ -420,6 +509,7 @@ mod tests {
         assert_eq!(i.current.velocity(), [0.0, 0.0]);
         assert_eq!(i.camera.offset(), [0.0, 0.0]);
         assert_eq!(i.frames.dropped.rate(), 0.0);
+        assert_eq!((i.thrusters.gain.factor(), i.latency.periods()), (1.0, 0));
         assert!(!i.damping.enabled && !i.thrusters.lag.enabled);
         assert!(!i.thrusters.dead_band.enabled && !i.thrusters.asymmetry.enabled);
         assert!(!i.render.noise.enabled && !i.render.blur.enabled && !i.render.lighting.enabled);
@@ -465,6 +555,13 @@ mod tests {
             err.to_string().contains("thrusters.lag.time_constant_s"),
             "{err}"
         );
+
+        let err = crate::parse::<TwinParams>("[thrusters.gain]\nfactor = 0\n", Path::new("t.toml"))
+            .unwrap_err();
+        assert!(err.to_string().contains("thrusters.gain.factor"), "{err}");
+        let err = crate::parse::<TwinParams>("[latency]\nframes = 11\n", Path::new("t.toml"))
+            .unwrap_err();
+        assert!(err.to_string().contains("latency.frames"), "{err}");
 
         let err = crate::parse::<TwinParams>("[render.noise]\nstd_dn = -2\n", Path::new("t.toml"))
             .unwrap_err();

@@ -20,6 +20,7 @@ use crate::gpomdp::{Gpomdp, GpomdpConfig};
 use crate::learner::{Algorithm, Learner, PolicyLearner, Transition};
 use crate::nac::{GradientHistory, Nac, NacConfig, NacStatistics};
 use crate::policy::LinearGaussian;
+use crate::safety::{Review, SafetyState, UpdateGuard};
 use config::StepStatus;
 use config::{Dof, LearningParams, QuadraticCost};
 use nalgebra::{SMatrix, SVector, Vector2};
@@ -107,6 +108,11 @@ pub struct Agent {
     episodes: u64,
     episode_return: f64,
     episode_steps: u32,
+    /// What may change the policy (step two's safety layer; inactive by default).
+    guard: UpdateGuard,
+    safety: SafetyState,
+    /// Actor updates refused in this episode (logged once at its start and summed at its end).
+    episode_refused: u64,
 }
 
 impl Agent {
@@ -141,8 +147,8 @@ impl Agent {
             policy,
             learner,
             seed,
-            0,
-            0,
+            (0, 0),
+            SafetyState::default(),
         )
     }
 
@@ -189,8 +195,8 @@ impl Agent {
             policy,
             learner,
             seed,
-            state.steps,
-            state.episodes,
+            (state.steps, state.episodes),
+            state.safety,
         ))
     }
 
@@ -203,8 +209,8 @@ impl Agent {
         policy: LinearGaussian<2>,
         learner: CableLearner,
         seed: u64,
-        steps: u64,
-        episodes: u64,
+        (steps, episodes): (u64, u64),
+        safety: SafetyState,
     ) -> Self {
         // gamma is the task's discount (NAC's), whichever algorithm learns: the failure is part of the
         // reward, and both algorithms must be scored on the same task.
@@ -224,6 +230,9 @@ impl Agent {
             episodes,
             episode_return: 0.0,
             episode_steps: 0,
+            guard: UpdateGuard::default(),
+            safety,
+            episode_refused: 0,
         }
     }
 
@@ -264,7 +273,11 @@ impl Agent {
                     reward,
                     next,
                 };
+                let before = self.gain();
                 actor_updated = self.learner.update(&mut self.policy, &t);
+                if actor_updated && self.guard.is_active() {
+                    actor_updated = self.review(before);
+                }
             }
         }
 
@@ -304,6 +317,33 @@ impl Agent {
         }
     }
 
+    /// Puts the learner's update from `before` to the policy's gain now before the guard; returns
+    /// whether the policy changed.
+    fn review(&mut self, before: [f64; 2]) -> bool {
+        match self.guard.review(before, self.gain()) {
+            Review::Accepted { gain, bounded } => {
+                self.policy.gain = gain.into();
+                self.safety.bounded += bounded as u64;
+                true
+            }
+            Review::Refused { proposed, radius } => {
+                self.policy.gain = before.into();
+                self.safety.refused += 1;
+                self.episode_refused += 1;
+                if self.episode_refused == 1 {
+                    tracing::warn!(
+                        dof = %self.dof,
+                        gain = ?before,
+                        ?proposed,
+                        radius,
+                        "actor update refused: the gain would leave the stable set of the identified model"
+                    );
+                }
+                false
+            }
+        }
+    }
+
     /// A control step without an observation (perception missed the cable in a frame although it is
     /// in view): returns the action to apply, 0 (hold still). The pending transition has no next
     /// state, so the learner does not see it; its reward (known from its start and its action) still
@@ -329,6 +369,15 @@ impl Agent {
     fn finish_episode(&mut self, end: EpisodeEnd) -> Option<EpisodeSummary> {
         self.learner.end_episode();
         self.pending = None;
+        let refused = std::mem::take(&mut self.episode_refused);
+        if refused > 1 {
+            tracing::warn!(
+                dof = %self.dof,
+                refused,
+                gain = ?self.gain(),
+                "actor updates refused in this episode by the stability guard"
+            );
+        }
         let steps = std::mem::take(&mut self.episode_steps);
         let return_ = std::mem::take(&mut self.episode_return);
         if steps == 0 {
@@ -368,6 +417,41 @@ impl Agent {
         self.learning
     }
 
+    /// Puts every actor update from now on before `guard` (the trust region and the stable set of
+    /// step two); `UpdateGuard::default()` lets every update through.
+    pub fn set_guard(&mut self, guard: UpdateGuard) {
+        self.guard = guard;
+    }
+
+    /// The guard every actor update passes.
+    pub fn guard(&self) -> &UpdateGuard {
+        &self.guard
+    }
+
+    /// The safety layer's counts and the best policy evaluated so far.
+    pub fn safety(&self) -> &SafetyState {
+        &self.safety
+    }
+
+    /// The safety layer's state, for the behaviour's evaluations.
+    pub fn safety_mut(&mut self) -> &mut SafetyState {
+        &mut self.safety
+    }
+
+    /// Restarts the exploration noise from `seed` (an evaluation trial draws the same noise as the
+    /// same trial of every other evaluation).
+    pub fn reseed(&mut self, seed: u64) {
+        self.rng = StdRng::seed_from_u64(seed);
+    }
+
+    /// Replaces the policy's gain by `gain` (a rollback to the best policy) and drops the learner's
+    /// statistics, which were gathered under the replaced policy; its counters stay.
+    pub fn restore(&mut self, gain: [f64; 2]) {
+        self.policy.gain = Vector2::from(gain);
+        self.learner.forget();
+        self.pending = None;
+    }
+
     /// The policy gain `K` for (position, rate).
     pub fn gain(&self) -> [f64; 2] {
         self.policy.gain.into()
@@ -396,6 +480,11 @@ impl Agent {
     /// The DOF.
     pub fn dof(&self) -> Dof {
         self.dof
+    }
+
+    /// The learning parameters in force.
+    pub fn params(&self) -> &LearningParams {
+        &self.params
     }
 
     /// The reward of a lost cable (see [`failure_reward`]).
@@ -450,6 +539,7 @@ impl Agent {
             learner,
             steps: self.steps,
             episodes: self.episodes,
+            safety: self.safety,
         }
     }
 }

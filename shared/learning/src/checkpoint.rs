@@ -15,12 +15,17 @@
 //! crate's serialisation. It does embed the `config` crate's `LearningParams` and `QuadraticCost`,
 //! and bincode encodes fields by position: adding, removing or reordering a field of any type in the
 //! payload changes the format, and must bump [`FORMAT_VERSION`]. A reader refuses a file written by
-//! a newer format rather than guessing.
+//! a newer format rather than guessing; it reads the older ones:
+//!
+//! - version 1: no step-two parameters (`LearningParams::evaluation`, `safety`) and no safety state
+//!   in an agent's state; read with their defaults (nothing evaluated, nothing refused yet).
+//! - version 2: the current format.
 //!
 //! Saving writes a temporary file in the target's directory, syncs it, renames it over the target and
 //! syncs the directory: a crash leaves either the old checkpoint or the new one, never a mix.
 
 use crate::learner::Algorithm;
+use crate::safety::SafetyState;
 use config::{Dof, Invalid, LearningParams, QuadraticCost, Validate};
 use serde::{Deserialize, Serialize};
 use std::fs::{self, File, OpenOptions};
@@ -31,7 +36,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// The first bytes of every checkpoint file.
 pub const MAGIC: [u8; 8] = *b"CTRKCKPT";
 /// The format this code writes, and the newest it reads.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 /// Magic, version, payload length, CRC.
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 4;
 
@@ -69,6 +74,8 @@ pub struct AgentState {
     pub steps: u64,
     /// Episodes completed.
     pub episodes: u64,
+    /// Step two's safety layer: its counts and the best policy evaluated so far.
+    pub safety: SafetyState,
 }
 
 impl AgentState {
@@ -127,6 +134,14 @@ impl AgentState {
                 }
             }
             LearnerState::Gpomdp(s) => finite("learner.z", &s.z)?,
+        }
+        if !self.safety.is_valid() {
+            return Err(Invalid::new(
+                "safety",
+                format!("{:?}", self.safety),
+                "the best policy's gain and the evaluation in progress must be finite",
+            )
+            .into());
         }
         Ok(())
     }
@@ -407,13 +422,19 @@ impl Checkpoint {
                 computed,
             }));
         }
-        let (checkpoint, used): (Checkpoint, usize) =
-            bincode::serde::decode_from_slice(&payload, bincode::config::standard()).map_err(
-                |source| CheckpointError::Decode {
-                    path: path.to_owned(),
-                    source,
-                },
-            )?;
+        let decode_err = |source| CheckpointError::Decode {
+            path: path.to_owned(),
+            source,
+        };
+        let (checkpoint, used): (Checkpoint, usize) = if version == 1 {
+            let (old, used): (v1::Checkpoint, usize) =
+                bincode::serde::decode_from_slice(&payload, bincode::config::standard())
+                    .map_err(decode_err)?;
+            (old.into(), used)
+        } else {
+            bincode::serde::decode_from_slice(&payload, bincode::config::standard())
+                .map_err(decode_err)?
+        };
         if used != payload.len() {
             return Err(corrupt(Corruption::TrailingBytes {
                 extra: (payload.len() - used) as u64,
@@ -465,6 +486,68 @@ impl Checkpoint {
         bytes.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
         bytes.extend_from_slice(&payload);
         Ok(bytes)
+    }
+}
+
+/// The payload of format version 1 (see the module docs), read into the current types.
+mod v1 {
+    use super::{LearnerState, PolicyState};
+    use config::{Dof, GpomdpParams, NacParams, PolicyParams, QuadraticCost};
+    use serde::{Deserialize, Serialize};
+
+    #[derive(Serialize, Deserialize)]
+    pub struct Checkpoint {
+        pub sway: Option<AgentState>,
+        pub yaw: Option<AgentState>,
+    }
+
+    #[derive(Serialize, Deserialize)]
+    pub struct AgentState {
+        pub dof: Dof,
+        pub params: LearningParams,
+        pub cost: QuadraticCost,
+        pub state_max: [f64; 2],
+        pub policy: PolicyState,
+        pub learner: LearnerState,
+        pub steps: u64,
+        pub episodes: u64,
+    }
+
+    #[derive(Serialize, Deserialize)]
+    pub struct LearningParams {
+        pub policy: PolicyParams,
+        pub nac: NacParams,
+        pub gpomdp: GpomdpParams,
+    }
+
+    impl From<AgentState> for super::AgentState {
+        fn from(s: AgentState) -> Self {
+            super::AgentState {
+                dof: s.dof,
+                params: config::LearningParams {
+                    policy: s.params.policy,
+                    nac: s.params.nac,
+                    gpomdp: s.params.gpomdp,
+                    ..Default::default()
+                },
+                cost: s.cost,
+                state_max: s.state_max,
+                policy: s.policy,
+                learner: s.learner,
+                steps: s.steps,
+                episodes: s.episodes,
+                safety: Default::default(),
+            }
+        }
+    }
+
+    impl From<Checkpoint> for super::Checkpoint {
+        fn from(c: Checkpoint) -> Self {
+            super::Checkpoint {
+                sway: c.sway.map(Into::into),
+                yaw: c.yaw.map(Into::into),
+            }
+        }
     }
 }
 
@@ -815,11 +898,46 @@ mod tests {
         assert_eq!(Checkpoint::load(&path).unwrap(), good);
     }
 
+    /// A file of format 1 (before step two's parameters and safety state) still loads, with their
+    /// defaults.
+    #[test]
+    fn a_format_1_checkpoint_loads_with_the_step_two_defaults() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.ckpt");
+        let now = both();
+        let old = |s: &AgentState| v1::AgentState {
+            dof: s.dof,
+            params: v1::LearningParams {
+                policy: s.params.policy.clone(),
+                nac: s.params.nac.clone(),
+                gpomdp: s.params.gpomdp.clone(),
+            },
+            cost: s.cost,
+            state_max: s.state_max,
+            policy: s.policy,
+            learner: s.learner.clone(),
+            steps: s.steps,
+            episodes: s.episodes,
+        };
+        let file = v1::Checkpoint {
+            sway: now.sway.as_ref().map(old),
+            yaw: now.yaw.as_ref().map(old),
+        };
+        let payload = bincode::serde::encode_to_vec(&file, bincode::config::standard()).unwrap();
+        let mut bytes = MAGIC.to_vec();
+        bytes.extend_from_slice(&1u32.to_le_bytes());
+        bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        bytes.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
+        bytes.extend_from_slice(&payload);
+        fs::write(&path, bytes).unwrap();
+        assert_eq!(Checkpoint::load(&path).unwrap(), now);
+    }
+
     #[test]
     fn the_header_is_the_documented_layout() {
         let (_dir, _path, bytes) = saved_bytes();
         assert_eq!(&bytes[..8], b"CTRKCKPT");
-        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 1);
+        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 2);
         let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
         assert_eq!(len as usize, bytes.len() - HEADER_LEN);
         let crc = u32::from_le_bytes(bytes[20..24].try_into().unwrap());

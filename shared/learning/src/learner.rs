@@ -107,6 +107,15 @@ impl<const S: usize, const N: usize> Learner<S, N> {
     pub fn actor_updates(&self) -> u64 {
         PolicyLearner::actor_updates(self)
     }
+
+    /// Drops what was learned about the current policy (NAC's statistics, OLPOMDP's trace), as if
+    /// nothing had been seen; the counters of transitions and actor updates stay.
+    pub fn forget(&mut self) {
+        match self {
+            Learner::Nac(l) => l.forget(),
+            Learner::Gpomdp(l) => l.end_episode(),
+        }
+    }
 }
 
 impl<const S: usize, const N: usize> PolicyLearner<S> for Learner<S, N> {

@@ -7,6 +7,8 @@
 //! - [`agent`]: one learned DOF as a behaviour sees it: observe, act, learn, report episodes.
 //! - [`checkpoint`]: what step one hands to step two, in a checked, atomically written file.
 //! - [`lqr`]: exact discretisation and discounted LQR, the optimum a linear policy should approach.
+//! - [`safety`]: step two's safety layer: a trust region on each actor update, a stability guard,
+//!   keeping the best policy.
 //!
 //! No IPC and no files except checkpoints: the behaviour services and the in-process trainer call this.
 
@@ -19,6 +21,7 @@ pub mod learner;
 pub mod lqr;
 pub mod nac;
 pub mod policy;
+pub mod safety;
 
 #[cfg(test)]
 mod testkit;
@@ -32,3 +35,6 @@ pub use gpomdp::{Gpomdp, GpomdpConfig};
 pub use learner::{Algorithm, Learner, PolicyLearner, Transition};
 pub use nac::{GradientHistory, Nac, NacConfig, NacStatistics};
 pub use policy::LinearGaussian;
+pub use safety::{
+    BestPolicy, KeepBest, Review, SafetyState, StableSet, TrustRegion, UpdateGuard, Verdict,
+};

@@ -300,6 +300,15 @@ impl<const S: usize, const N: usize> Nac<S, N> {
         self.stats.z = SVector::zeros();
     }
 
+    /// Drops the statistics (`z = A = b = 0`, no gradient history), keeping the counters: the
+    /// learner starts afresh from the policy it is given next.
+    pub fn forget(&mut self) {
+        let (steps, actor_updates) = (self.stats.steps, self.stats.actor_updates);
+        self.stats = NacStatistics::zeros();
+        self.stats.steps = steps;
+        self.stats.actor_updates = actor_updates;
+    }
+
     /// The configuration.
     pub fn config(&self) -> &NacConfig {
         &self.config

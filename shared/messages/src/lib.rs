@@ -12,9 +12,16 @@
 //!      └──────────────────ThrusterSetpoints◀──────── thruster-allocator ◀─────────────────────────┘
 //! ```
 //!
-//! Every payload starts with a [`Stamp`]: the step's sequence number (global, increasing across
-//! episodes), its episode and step, the time, and the episode status. A consumer matches inputs by
-//! `seq` and never mixes steps.
+//! Every payload of the control loop starts with a [`Stamp`]: the step's sequence number (increasing
+//! across episodes within the producer's epoch), its epoch, its episode and step, its time, the
+//! vehicle clock when it was taken (on the vehicle endpoint), and the episode status. A consumer
+//! matches inputs by epoch and `seq`, never mixes steps, and refuses stale or absurd stamps
+//! (`runtime::lockstep::Screen`).
+//!
+//! Setpoints are either a step's answer or a failsafe stop ([`ThrusterSetpoints::stop`],
+//! [`StopCause`]): the thruster driver's, which drives the thrusters to 0. Beside the loop, the
+//! supervisor reports what happens to the services ([`SupervisorEvent`]) and the flight recorder its
+//! progress ([`RecorderStatus`]); these belong to no step and carry the wall clock instead.
 //!
 //! Below the endpoints lies the hardware level ([`topics::hardware`]): the vehicle twin's camera and
 //! thrusters, `cabletrack/twin/<topic>`, reached only through the vehicle endpoint's adapters.
@@ -28,7 +35,8 @@ pub mod topics;
 
 pub use payload::{
     CableObservationData, CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats,
-    Mission, MissionCommand, Stamp, Stamped, StepStatus, ThrusterSetpoints, VehicleStateMsg,
+    Mission, MissionCommand, RecorderStatus, ServiceEvent, Stamp, Stamped, StepStatus, StopCause,
+    SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
 };
-pub use ports::{FrameInbox, FrameOutbox, Heartbeat, Inbox, Outbox, PortError};
+pub use ports::{FrameInbox, FrameOutbox, FrameTap, Heartbeat, Inbox, Outbox, PortError, Tap};
 pub use topics::{Endpoint, Qos, Topic};

@@ -5,33 +5,61 @@ use iceoryx2::prelude::*;
 
 pub use config::StepStatus;
 
-/// The step a message belongs to. Copied unchanged from the vehicle state through every stage.
+/// The step a message belongs to. Copied unchanged from the step's first message (the simulator's
+/// vehicle state, the vehicle camera's frame) through every stage, so every consumer judges it alike
+/// (`runtime::lockstep::Screen`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::Stamp/1")]
+#[type_name("cabletrack::Stamp/2")]
 pub struct Stamp {
-    /// Sequence number of the control step, increasing across episodes (never reused in a run).
+    /// Sequence number of the control step, increasing within the producer's epoch.
     pub seq: u64,
-    /// Time of the step (ns): simulated time on the sim endpoint, the monotonic clock on the vehicle.
+    /// Time of the step (ns): simulated time on the sim endpoint; on the vehicle the frame source's
+    /// clock (the twin matches the setpoints answering a frame by it).
     pub time_ns: u64,
+    /// The vehicle's monotonic clock (ns) when the step was taken (the camera read its frame); 0 on
+    /// the sim endpoint, whose lockstep runs on simulated time: an untimed stamp is never judged by
+    /// its age.
+    pub clock_ns: u64,
+    /// The session of the process that numbered `seq`, new at each start: a restarted producer's
+    /// steps start a new epoch, which consumers accept instead of taking its `seq` for an old one.
+    /// 0: no epoch.
+    pub epoch: u32,
     pub episode: u32,
     /// Step within the episode, 0 at the reset.
     pub step: u32,
     /// A [`StepStatus`] as u8.
     pub status: u8,
-    pub _reserved: [u8; 7],
+    pub _reserved: [u8; 3],
 }
 
 impl Stamp {
+    /// An untimed stamp of no epoch (the sim endpoint's; tests).
     pub fn new(seq: u64, time_ns: u64, episode: u32, step: u32, status: StepStatus) -> Self {
         Stamp {
             seq,
             time_ns,
+            clock_ns: 0,
+            epoch: 0,
             episode,
             step,
             status: status as u8,
-            _reserved: [0; 7],
+            _reserved: [0; 3],
         }
+    }
+
+    /// The same step, taken at `clock_ns` on the vehicle clock in the producer's `epoch`.
+    pub fn timed(self, epoch: u32, clock_ns: u64) -> Self {
+        Stamp {
+            epoch,
+            clock_ns,
+            ..self
+        }
+    }
+
+    /// Whether the stamp carries the vehicle clock (the vehicle endpoint's stamps do).
+    pub fn is_timed(&self) -> bool {
+        self.clock_ns != 0
     }
 
     /// The step's status; an unknown value (a corrupt or newer message) reads as `Lost`: the safe end.
@@ -43,7 +71,7 @@ impl Stamp {
 /// The vehicle's state (pool frame pose, body velocities) and the pose's rate (current included).
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::VehicleState/1")]
+#[type_name("cabletrack::VehicleState/2")]
 pub struct VehicleStateMsg {
     pub stamp: Stamp,
     pub x: f64,
@@ -106,7 +134,7 @@ impl VehicleStateMsg {
 /// [`CameraFrameHeader`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::CableObservationData/1")]
+#[type_name("cabletrack::CableObservationData/2")]
 pub struct CableObservationData {
     /// 1 when the cable was found (in view), 0 otherwise.
     pub found: u8,
@@ -136,6 +164,30 @@ impl From<&model::CableObservation> for CableObservationData {
     }
 }
 
+impl CableObservationData {
+    /// The observation under the rule for bad values (`model::bounds`), each quantity within its
+    /// range: x_g and y_g within half the image, Theta within [-pi/2, pi/2], the rates within the
+    /// scenario's clipping `limits`, the confidence within [0, 1], rho finite. A perception that
+    /// never errs changes nothing here; a corrupt or forged message cannot hand a learner NaN.
+    pub fn bounded(&self, limits: &config::ObservationLimits) -> (Self, model::bounds::Fixes) {
+        use model::bounds::{bounded, symmetric};
+        let mut fixes = model::bounds::Fixes::default();
+        let mut f = |v| fixes.note(v);
+        let out = CableObservationData {
+            found: (self.found != 0) as u8,
+            _reserved: [0; 7],
+            rho: f(symmetric(self.rho, f64::MAX)),
+            theta: f(symmetric(self.theta, std::f64::consts::FRAC_PI_2)),
+            x_g: f(symmetric(self.x_g, 0.5)),
+            y_g: f(symmetric(self.y_g, 0.5)),
+            x_g_rate: f(symmetric(self.x_g_rate, limits.x_g_rate_max)),
+            theta_rate: f(symmetric(self.theta_rate, limits.theta_rate_max)),
+            confidence: f(bounded(self.confidence, 0.0, 1.0)),
+        };
+        (out, fixes)
+    }
+}
+
 impl From<&CableObservationData> for model::CableObservation {
     fn from(t: &CableObservationData) -> Self {
         model::CableObservation {
@@ -155,7 +207,7 @@ impl From<&CableObservationData> for model::CableObservation {
 /// (empty when the camera runs without images and only the ground truth is passed on).
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::CameraFrameHeader/1")]
+#[type_name("cabletrack::CameraFrameHeader/2")]
 pub struct CameraFrameHeader {
     pub stamp: Stamp,
     pub width: u32,
@@ -168,7 +220,7 @@ pub struct CameraFrameHeader {
 /// What perception found in a frame.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::CableObservation/1")]
+#[type_name("cabletrack::CableObservation/2")]
 pub struct CableObservationMsg {
     pub stamp: Stamp,
     pub observation: CableObservationData,
@@ -183,21 +235,26 @@ impl CableObservationMsg {
 /// One DOF's command: the normalised generalised force in [-1, 1].
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::DofCommand/1")]
+#[type_name("cabletrack::DofCommand/2")]
 pub struct DofCommand {
     pub stamp: Stamp,
     pub value: f64,
 }
 
-/// Thruster setpoints in [-1, 1], in the order of the configured layout.
+/// Thruster setpoints in [-1, 1], in the order of the configured layout: a step's answer, or a
+/// failsafe stop (`stop != 0`: every setpoint 0, stamped with the last step written, or an empty
+/// stamp before any; never an answer to a step).
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::ThrusterSetpoints/1")]
+#[type_name("cabletrack::ThrusterSetpoints/2")]
 pub struct ThrusterSetpoints {
     pub stamp: Stamp,
     pub count: u32,
     /// Bit k set: DOF k's command (0 surge, 1 sway, 2 yaw) missed its deadline and counted as 0.
     pub missing: u32,
+    /// 0, or why the thrusters were stopped: a [`StopCause`] as u32.
+    pub stop: u32,
+    pub _reserved: u32,
     pub values: [f64; config::MAX_THRUSTERS],
     /// The factor applied to keep every setpoint within [-1, 1] (1 when nothing saturated).
     pub scale: f64,
@@ -207,18 +264,81 @@ impl ThrusterSetpoints {
     pub fn as_slice(&self) -> &[f64] {
         &self.values[..(self.count as usize).min(config::MAX_THRUSTERS)]
     }
+
+    /// Why these setpoints stop the thrusters, if they are a failsafe stop.
+    pub fn stop_cause(&self) -> Option<StopCause> {
+        (self.stop != 0).then(|| StopCause::from_u32(self.stop))
+    }
+}
+
+/// Why the thrusters were stopped (driven to 0) without a step's answer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u32)]
+pub enum StopCause {
+    /// The thruster driver started: the thrusters begin at rest.
+    Start = 1,
+    /// No fresh setpoints within the deadline.
+    Deadline = 2,
+    /// The thruster driver was asked to stop (SIGINT, SIGTERM) or is closing its thrusters.
+    Shutdown = 3,
+    /// The allocator's process died.
+    AllocatorDead = 4,
+    /// An unknown cause (a corrupt or newer message): still a stop.
+    Unknown = 255,
+}
+
+impl StopCause {
+    pub fn from_u32(v: u32) -> Self {
+        match v {
+            1 => StopCause::Start,
+            2 => StopCause::Deadline,
+            3 => StopCause::Shutdown,
+            4 => StopCause::AllocatorDead,
+            _ => StopCause::Unknown,
+        }
+    }
+
+    /// The cause as written in logs and files.
+    pub fn name(self) -> &'static str {
+        match self {
+            StopCause::Start => "start",
+            StopCause::Deadline => "deadline",
+            StopCause::Shutdown => "shutdown",
+            StopCause::AllocatorDead => "allocator_dead",
+            StopCause::Unknown => "unknown",
+        }
+    }
+
+    /// The cause of a name written by [`StopCause::name`].
+    pub fn parse(name: &str) -> Option<Self> {
+        [
+            StopCause::Start,
+            StopCause::Deadline,
+            StopCause::Shutdown,
+            StopCause::AllocatorDead,
+            StopCause::Unknown,
+        ]
+        .into_iter()
+        .find(|c| c.name() == name)
+    }
+}
+
+impl std::fmt::Display for StopCause {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
 }
 
 /// A behaviour's report at the end of each episode.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::LearningStats/1")]
+#[type_name("cabletrack::LearningStats/2")]
 pub struct LearningStats {
     /// The stamp of the step that ended the episode.
     pub stamp: Stamp,
     /// The episode's return (sum of the behaviour's rewards, the failure reward included).
     pub episode_return: f64,
-    /// K after the episode, for (position, rate).
+    /// K after the episode (after a rollback it closed), for (position, rate).
     pub gain: [f64; 2],
     /// Actor updates since the learner started.
     pub actor_updates: u64,
@@ -228,7 +348,141 @@ pub struct LearningStats {
     pub failed: u8,
     /// 1 while learning, 0 when only acting.
     pub learning: u8,
-    pub _reserved: [u8; 2],
+    /// 1 for an evaluation trial of step two (the policy acted without learning).
+    pub evaluation: u8,
+    /// 1 when this trial closed an evaluation that restored the best policy.
+    pub rolled_back: u8,
+    /// Step two's safety layer so far: actor updates shortened by the trust region, refused by the
+    /// stability guard, and policies replaced by the best one.
+    pub bounded: u64,
+    pub refused: u64,
+    pub rollbacks: u64,
+    /// The mean return of the evaluation this trial closed (NaN when it closed none), and the best
+    /// evaluated so far (NaN before the first).
+    pub evaluated: f64,
+    pub best_evaluated: f64,
+}
+
+/// What happened to a service of the mesh ([`SupervisorEvent::kind`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum ServiceEvent {
+    /// The supervisor started it (at the mesh's start, or again after it died).
+    Started = 1,
+    /// It exited on its own: with success (its job done) or not (it died).
+    Exited = 2,
+    /// It died and will be started again after [`SupervisorEvent::delay_ms`].
+    Restarting = 3,
+    /// The supervisor stopped it with the mesh (SIGTERM, then SIGKILL after the grace period).
+    Stopped = 4,
+}
+
+impl ServiceEvent {
+    pub fn from_u8(v: u8) -> Option<ServiceEvent> {
+        match v {
+            1 => Some(ServiceEvent::Started),
+            2 => Some(ServiceEvent::Exited),
+            3 => Some(ServiceEvent::Restarting),
+            4 => Some(ServiceEvent::Stopped),
+            _ => None,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ServiceEvent::Started => "started",
+            ServiceEvent::Exited => "exited",
+            ServiceEvent::Restarting => "restarting",
+            ServiceEvent::Stopped => "stopped",
+        }
+    }
+}
+
+/// The longest service name an event carries (longer names are cut at a character boundary).
+pub const SERVICE_NAME_LEN: usize = 32;
+
+/// One of the supervisor's events. It belongs to no control step, so it carries no [`Stamp`]: its
+/// time is the wall clock.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::SupervisorEvent/1")]
+pub struct SupervisorEvent {
+    /// Events count from 1 in one supervisor's run.
+    pub seq: u64,
+    /// When it happened: nanoseconds since the Unix epoch.
+    pub wall_time_ns: u64,
+    /// A [`ServiceEvent`] as u8.
+    pub kind: u8,
+    pub _reserved: [u8; 3],
+    /// The service's process (for `Restarting`: the one that died).
+    pub pid: u32,
+    /// `Exited`, `Stopped`: the exit code, or minus the signal that ended it; 0 otherwise.
+    pub status: i32,
+    /// Times the service has been restarted so far.
+    pub restarts: u32,
+    /// `Restarting`: the delay before the restart (ms). `Stopped`: 1 if it had to be killed.
+    pub detail: u32,
+    pub _pad: u32,
+    /// The service's name in the mesh file, UTF-8, NUL-padded.
+    pub service: [u8; SERVICE_NAME_LEN],
+}
+
+impl SupervisorEvent {
+    pub fn new(seq: u64, wall_time_ns: u64, kind: ServiceEvent, service: &str) -> Self {
+        let mut name = [0u8; SERVICE_NAME_LEN];
+        let mut end = service.len().min(SERVICE_NAME_LEN);
+        while !service.is_char_boundary(end) {
+            end -= 1;
+        }
+        name[..end].copy_from_slice(&service.as_bytes()[..end]);
+        SupervisorEvent {
+            seq,
+            wall_time_ns,
+            kind: kind as u8,
+            service: name,
+            ..Default::default()
+        }
+    }
+
+    /// The event's kind; `None` for an unknown value (a newer supervisor).
+    pub fn kind(&self) -> Option<ServiceEvent> {
+        ServiceEvent::from_u8(self.kind)
+    }
+
+    /// The service's name (invalid UTF-8 is replaced).
+    pub fn service(&self) -> String {
+        let end = self
+            .service
+            .iter()
+            .position(|&b| b == 0)
+            .unwrap_or(SERVICE_NAME_LEN);
+        String::from_utf8_lossy(&self.service[..end]).into_owned()
+    }
+}
+
+/// The flight recorder's report after each flush of its file.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::RecorderStatus/1")]
+pub struct RecorderStatus {
+    /// Reports count from 1.
+    pub seq: u64,
+    /// Nanoseconds since the Unix epoch.
+    pub wall_time_ns: u64,
+    /// Messages written so far, over every part of the record.
+    pub messages: u64,
+    /// Messages on disk in complete chunks: what a SIGKILL now would leave readable.
+    pub flushed_messages: u64,
+    /// Bytes written so far, over every part.
+    pub bytes: u64,
+    /// Steps a topic missed while other topics of the loop had them (the recorder's buffer
+    /// overflowed, or the step was never published on that topic).
+    pub holes: u64,
+    /// Messages of a step seen again (re-sends), not written again.
+    pub repeats: u64,
+    /// The part being written (0: the file named on the command line).
+    pub part: u32,
+    pub _reserved: u32,
 }
 
 /// What the shore asks of the vehicle's mesh (see [`crate::topics::shore::MISSION`]).
@@ -292,3 +546,31 @@ stamped!(
     ThrusterSetpoints,
     LearningStats
 );
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_event_carries_the_service_name_cut_at_a_character_boundary() {
+        let e = SupervisorEvent::new(3, 7, ServiceEvent::Restarting, "sway-behaviour");
+        assert_eq!(e.service(), "sway-behaviour");
+        assert_eq!(e.kind(), Some(ServiceEvent::Restarting));
+        assert_eq!(
+            std::mem::size_of::<SupervisorEvent>(),
+            72,
+            "no hidden padding"
+        );
+        // 31 ASCII bytes and a two-byte character: the character does not fit and is left out.
+        let long = format!("{}é", "a".repeat(31));
+        assert_eq!(
+            SupervisorEvent::new(1, 0, ServiceEvent::Started, &long).service(),
+            "a".repeat(31)
+        );
+        let unknown = SupervisorEvent {
+            kind: 9,
+            ..Default::default()
+        };
+        assert_eq!(unknown.kind(), None);
+    }
+}

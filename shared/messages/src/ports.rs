@@ -1,9 +1,17 @@
 //! Opening topics: the only way a process reaches another, so every service is created with the QoS
 //! of [`crate::topics`]. An [`Outbox`] publishes and then notifies; an [`Inbox`] receives and exposes
 //! its listener so a process can block on it in a WaitSet.
+//!
+//! A topic of one publisher (`max_publishers = 1`: the thrusters' setpoints) is *exclusive*: an
+//! [`Outbox`] opened while another process publishes on it and is alive is refused with an error
+//! naming that process; the place of a publisher whose process died is freed first. Every topic's
+//! event service announces a publisher whose process died ([`PUBLISHER_DIED`]) once its leftovers
+//! are removed, so a consumer blocked on it learns of the death at once.
 
 use crate::payload::CameraFrameHeader;
 use crate::topics::{Endpoint, Topic};
+use iceoryx2::identifiers::UniqueNodeId;
+use iceoryx2::node::NodeView;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -41,6 +49,10 @@ fn service_name(service: &str) -> Result<ServiceName, PortError> {
     ServiceName::new(service).map_err(|e| fail(service, "invalid service name")(&e))
 }
 
+/// The event a topic's listeners receive when a publisher's process is found dead and its leftovers
+/// are removed (iceoryx2's `notifier_dead_event`); publishers notify with event 0.
+pub const PUBLISHER_DIED: usize = 254;
+
 /// Opens (or creates) the event service beside a topic, with the topic's QoS.
 pub fn open_event(
     node: &Node<Ipc>,
@@ -52,6 +64,7 @@ pub fn open_event(
         .max_notifiers(qos.max_publishers)
         .max_listeners(qos.max_subscribers)
         .max_nodes(qos.max_nodes)
+        .notifier_dead_event(EventId::new(PUBLISHER_DIED))
         .open_or_create()
         .map_err(|e| fail(service, "cannot open the event service")(&e))
 }
@@ -115,6 +128,99 @@ impl Heartbeat {
     }
 }
 
+/// A listener of the topic `service`'s event: notified after each message published on it.
+pub fn open_listener(
+    node: &Node<Ipc>,
+    service: &str,
+    qos: &crate::Qos,
+) -> Result<Listener<Ipc>, PortError> {
+    open_event(node, service, qos)?
+        .listener_builder()
+        .create()
+        .map_err(|e| fail(service, "cannot create a listener")(&e))
+}
+
+/// The processes publishing on a topic, by the state of their iceoryx2 node.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Publishers {
+    /// The names of the live publishers' nodes (the process names).
+    pub alive: Vec<String>,
+    /// Publishers whose process died and whose leftovers are still registered.
+    pub dead: usize,
+}
+
+/// The states of the nodes of `publishers`; with `remove_dead`, the leftovers of the dead ones are
+/// removed (which frees their places and announces [`PUBLISHER_DIED`]).
+fn publisher_states(node: &Node<Ipc>, ids: &[UniqueNodeId], remove_dead: bool) -> Publishers {
+    let mut out = Publishers::default();
+    let _ = Node::<Ipc>::list(node.config(), |state| {
+        match state {
+            NodeState::Alive(view) if ids.contains(view.id()) => {
+                let name = view
+                    .details()
+                    .as_ref()
+                    .map(|d| d.name().to_string())
+                    .unwrap_or_else(|| "?".into());
+                out.alive.push(name);
+            }
+            NodeState::Dead(view) if ids.contains(view.id()) => {
+                out.dead += 1;
+                if remove_dead {
+                    let _ = view.try_remove_stale_resources();
+                }
+            }
+            _ => {}
+        }
+        CallbackProgression::Continue
+    });
+    out
+}
+
+/// The node ids of a topic's publishers.
+fn publisher_ids<P: Debug + ?Sized + IceoryxSend, H: Debug + ZeroCopySend>(
+    factory: &PortFactory<Ipc, P, H>,
+) -> Vec<UniqueNodeId> {
+    let mut ids = Vec::new();
+    factory.dynamic_config().list_publishers(|p| {
+        ids.push(p.node_id);
+        CallbackProgression::Continue
+    });
+    ids
+}
+
+/// Refuses a second live publisher on an exclusive topic (see the module docs), after freeing the
+/// place of a dead one.
+fn check_exclusive<P: Debug + ?Sized + IceoryxSend, H: Debug + ZeroCopySend>(
+    node: &Node<Ipc>,
+    service: &str,
+    q: &crate::Qos,
+    factory: &PortFactory<Ipc, P, H>,
+) -> Result<(), PortError> {
+    if q.max_publishers != 1 {
+        return Ok(());
+    }
+    let ids = publisher_ids(factory);
+    if ids.is_empty() {
+        return Ok(());
+    }
+    let found = publisher_states(node, &ids, true);
+    match found.alive.first() {
+        Some(who) => Err(exclusive(service, who)),
+        None => Ok(()),
+    }
+}
+
+fn exclusive(service: &str, who: &str) -> PortError {
+    PortError {
+        service: service.to_owned(),
+        what: "refused: one publisher at a time",
+        reason: format!(
+            "the live process `{who}` already publishes on it; this topic takes exactly one \
+             publisher (stop the other one first; the place of one that died is freed by itself)"
+        ),
+    }
+}
+
 /// Publishes one topic's messages and wakes its subscribers.
 pub struct Outbox<P: Payload> {
     service: String,
@@ -134,7 +240,7 @@ pub fn open_topic<P: Payload>(
     node.service_builder(&service_name(service)?)
         .publish_subscribe::<P>()
         .history_size(q.history)
-        .subscriber_max_buffer_size(q.buffer)
+        .subscriber_max_buffer_size(q.buffer.max(q.recorder_buffer))
         .enable_safe_overflow(true)
         .max_publishers(q.max_publishers)
         .max_subscribers(q.max_subscribers)
@@ -157,10 +263,18 @@ impl<P: Payload> Outbox<P> {
     ) -> Result<Self, PortError> {
         let q = &topic.qos;
         let factory = open_topic::<P>(node, service, q)?;
-        let publisher = factory
-            .publisher_builder()
-            .create()
-            .map_err(|e| fail(service, "cannot create a publisher")(&e))?;
+        check_exclusive(node, service, q, &factory)?;
+        let publisher = factory.publisher_builder().create().map_err(|e| {
+            match e {
+                // Two newcomers at once: the other one won.
+                iceoryx2::port::publisher::PublisherCreateError::ExceedsMaxSupportedPublishers
+                    if q.max_publishers == 1 =>
+                {
+                    exclusive(service, "another publisher")
+                }
+                e => fail(service, "cannot create a publisher")(&e),
+            }
+        })?;
         let notifier = open_event(node, service, q)?
             .notifier_builder()
             .create()
@@ -218,12 +332,10 @@ impl<P: Payload> Inbox<P> {
         let factory = open_topic::<P>(node, service, q)?;
         let subscriber = factory
             .subscriber_builder()
+            .buffer_size(q.buffer)
             .create()
             .map_err(|e| fail(service, "cannot create a subscriber")(&e))?;
-        let listener = open_event(node, service, q)?
-            .listener_builder()
-            .create()
-            .map_err(|e| fail(service, "cannot create a listener")(&e))?;
+        let listener = open_listener(node, service, q)?;
         Ok(Inbox {
             service: service.to_owned(),
             factory,
@@ -260,9 +372,35 @@ impl<P: Payload> Inbox<P> {
         self.factory.dynamic_config().number_of_publishers()
     }
 
+    /// The publishers' processes, alive or dead; the leftovers of dead ones are removed (their
+    /// listeners, this inbox's included, then receive [`PUBLISHER_DIED`]).
+    pub fn publisher_processes(&self, node: &Node<Ipc>) -> Publishers {
+        publisher_states(node, &publisher_ids(&self.factory), true)
+    }
+
     pub fn service(&self) -> &str {
         &self.service
     }
+}
+
+/// What a listener's pending notifications said: data arrived, and/or a publisher died.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Notified {
+    pub data: bool,
+    pub publisher_died: bool,
+}
+
+/// Consumes a listener's pending notifications (a WaitSet wakes again at once while any is left).
+pub fn take_notifications(listener: &Listener<Ipc>) -> Notified {
+    let mut n = Notified::default();
+    let _ = listener.try_wait(|a| {
+        if a.id.as_value() == PUBLISHER_DIED {
+            n.publisher_died = true;
+        } else {
+            n.data = true;
+        }
+    });
+    n
 }
 
 fn open_frames_service(
@@ -275,7 +413,7 @@ fn open_frames_service(
         .publish_subscribe::<[u8]>()
         .user_header::<CameraFrameHeader>()
         .history_size(q.history)
-        .subscriber_max_buffer_size(q.buffer)
+        .subscriber_max_buffer_size(q.buffer.max(q.recorder_buffer))
         .enable_safe_overflow(true)
         .max_publishers(q.max_publishers)
         .max_subscribers(q.max_subscribers)
@@ -314,6 +452,7 @@ impl FrameOutbox {
         max_len: usize,
     ) -> Result<Self, PortError> {
         let factory = open_frames_service(node, service, topic)?;
+        check_exclusive(node, service, &topic.qos, &factory)?;
         let publisher = factory
             .publisher_builder()
             .initial_max_slice_len(max_len.max(1))
@@ -394,12 +533,10 @@ impl FrameInbox {
         let factory = open_frames_service(node, service, topic)?;
         let subscriber = factory
             .subscriber_builder()
+            .buffer_size(topic.qos.buffer)
             .create()
             .map_err(|e| fail(service, "cannot create a subscriber")(&e))?;
-        let listener = open_event(node, service, &topic.qos)?
-            .listener_builder()
-            .create()
-            .map_err(|e| fail(service, "cannot create a listener")(&e))?;
+        let listener = open_listener(node, service, &topic.qos)?;
         Ok(FrameInbox {
             service: service.to_owned(),
             factory,
@@ -427,6 +564,81 @@ impl FrameInbox {
     /// Publishers connected now.
     pub fn publishers(&self) -> usize {
         self.factory.dynamic_config().number_of_publishers()
+    }
+
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+}
+
+/// A recording subscriber of one topic: the topic's [`crate::Qos::recorder_buffer`], and no
+/// listener, so a publish wakes nobody more than without it (the recorder wakes once per step on a
+/// listener of its own choosing, see [`open_listener`], and drains its taps then). When it falls
+/// behind by more than its buffer, the publisher overwrites its oldest samples: it never blocks.
+pub struct Tap<P: Payload> {
+    service: String,
+    subscriber: Subscriber<Ipc, P, ()>,
+}
+
+impl<P: Payload> Tap<P> {
+    pub fn open(node: &Node<Ipc>, endpoint: Endpoint, topic: &Topic<P>) -> Result<Self, PortError> {
+        let service = topic.service_name(endpoint);
+        let subscriber = open_topic::<P>(node, &service, &topic.qos)?
+            .subscriber_builder()
+            .buffer_size(topic.qos.recorder_buffer)
+            .create()
+            .map_err(|e| fail(&service, "cannot create a subscriber")(&e))?;
+        Ok(Tap {
+            service,
+            subscriber,
+        })
+    }
+
+    /// The next unread message, if any.
+    pub fn receive(&self) -> Result<Option<P>, PortError> {
+        match self.subscriber.receive() {
+            Ok(Some(sample)) => Ok(Some(*sample.payload())),
+            Ok(None) => Ok(None),
+            Err(e) => Err(fail(&self.service, "cannot receive")(&e)),
+        }
+    }
+
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+}
+
+/// A recording subscriber of the camera's frames (see [`Tap`]).
+pub struct FrameTap {
+    service: String,
+    subscriber: Subscriber<Ipc, [u8], CameraFrameHeader>,
+}
+
+impl FrameTap {
+    pub fn open(node: &Node<Ipc>, endpoint: Endpoint) -> Result<Self, PortError> {
+        let topic = crate::topics::CAMERA_FRAME;
+        let service = topic.service_name(endpoint);
+        let subscriber = open_frames_service(node, &service, &topic)?
+            .subscriber_builder()
+            .buffer_size(topic.qos.recorder_buffer)
+            .create()
+            .map_err(|e| fail(&service, "cannot create a subscriber")(&e))?;
+        Ok(FrameTap {
+            service,
+            subscriber,
+        })
+    }
+
+    /// Calls `f` with the next unread frame (header and image, in shared memory), if any.
+    pub fn receive_with<R>(
+        &self,
+        f: impl FnOnce(&CameraFrameHeader, &[u8]) -> R,
+    ) -> Result<Option<R>, PortError> {
+        match self.subscriber.receive() {
+            Ok(Some(sample)) => Ok(Some(f(sample.user_header(), sample.payload()))),
+            Ok(None) => Ok(None),
+            Err(e) => Err(fail(&self.service, "cannot receive")(&e)),
+        }
     }
 
     pub fn service(&self) -> &str {

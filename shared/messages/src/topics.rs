@@ -49,6 +49,10 @@ pub struct Qos {
     /// Samples a subscriber can hold unread; the oldest is overwritten when full (publishers never
     /// block: a slow process must not stall the vehicle).
     pub buffer: usize,
+    /// Samples a recording subscriber (`ports::Tap`: the flight recorder) can hold unread. It is
+    /// woken once per step, not per message, so it needs more slack than a consumer of the loop;
+    /// when it falls behind further, its oldest samples are overwritten and it counts the holes.
+    pub recorder_buffer: usize,
     pub max_publishers: usize,
     pub max_subscribers: usize,
     pub max_nodes: usize,
@@ -58,6 +62,8 @@ pub struct Qos {
 const STEP: Qos = Qos {
     history: 1,
     buffer: 4,
+    // About 40 ms of the accelerated simulation (1,500 steps/s); 13 s at the vehicle's 5 Hz.
+    recorder_buffer: 64,
     // The producing service, plus its restarted successor while the dead one is being cleaned up.
     max_publishers: 2,
     // The consumers, a recorder or monitor, and a test's probe.
@@ -104,9 +110,12 @@ pub const VEHICLE_STATE: Topic<VehicleStateMsg> = Topic::new("vehicle_state", ST
 pub const CAMERA_FRAME: Topic<[u8]> = Topic::new(
     "camera_frame",
     Qos {
-        // Each subscriber's buffer and history cost a frame of shared memory: keep them small.
+        // Each subscriber's buffer and history cost a frame of shared memory: keep them small. The
+        // recorder's 32 frames (2.5 MB at 320x240) hold 20 ms of the accelerated simulation, what a
+        // recorder descheduled on a busy 2-core machine needs to lose none.
         max_subscribers: 4,
         buffer: 2,
+        recorder_buffer: 32,
         ..STEP
     },
 );
@@ -127,7 +136,9 @@ pub fn command(dof: config::Dof) -> Topic<DofCommand> {
     }
 }
 
-/// Thruster setpoints: exactly one publisher (the allocator) may drive the thrusters.
+/// Thruster setpoints: exactly one publisher (the allocator) may drive the thrusters; a second one
+/// is refused while the first is alive (`ports`). A late subscriber still receives the last
+/// setpoints (history 1): the thruster driver judges their age and never acts on stale ones.
 pub const THRUSTER_SETPOINTS: Topic<ThrusterSetpoints> = Topic::new(
     "thruster_setpoints",
     Qos {
@@ -141,6 +152,7 @@ pub const THRUSTER_SETPOINTS: Topic<ThrusterSetpoints> = Topic::new(
 const STATS: Qos = Qos {
     history: 1,
     buffer: 256,
+    recorder_buffer: 256,
     max_publishers: 2,
     max_subscribers: 4,
     max_nodes: 16,
@@ -200,6 +212,7 @@ pub mod shore {
             // A subscriber that connects after the command (the link, the supervisor) still gets it.
             history: 1,
             buffer: 4,
+            recorder_buffer: 4,
             // The operator, and the link's mirror on the vehicle.
             max_publishers: 2,
             // The supervisor, the link, a test's probe.
@@ -213,6 +226,51 @@ pub mod shore {
         format!("cabletrack/shore/{}", topic.name)
     }
 }
+/// The supervisor's events: a service started, exited, is restarted, or was stopped with the mesh.
+/// A few a minute at most; the history lets a restarted recorder see the latest ones.
+pub const SUPERVISOR_EVENTS: Topic<SupervisorEvent> = Topic::new(
+    "supervisor/events",
+    Qos {
+        history: 16,
+        buffer: 64,
+        recorder_buffer: 64,
+        // The supervisor, and a successor while a killed one's port is being cleaned up.
+        max_publishers: 2,
+        max_subscribers: 4,
+        max_nodes: 16,
+    },
+);
+
+/// The flight recorder's progress, after each flush of its file: what is on disk, what it missed.
+pub const RECORDER_STATUS: Topic<RecorderStatus> = Topic::new(
+    "recorder/status",
+    Qos {
+        history: 1,
+        buffer: 16,
+        recorder_buffer: 16,
+        max_publishers: 2,
+        max_subscribers: 4,
+        max_nodes: 16,
+    },
+);
+
+// A recorder's subscriber holds at least what a consumer of the loop holds (checked when building).
+const _: () = {
+    let qos = [
+        VEHICLE_STATE.qos,
+        CAMERA_FRAME.qos,
+        CABLE_OBSERVATION.qos,
+        THRUSTER_SETPOINTS.qos,
+        STATS,
+        SUPERVISOR_EVENTS.qos,
+        RECORDER_STATUS.qos,
+    ];
+    let mut i = 0;
+    while i < qos.len() {
+        assert!(qos[i].recorder_buffer >= qos[i].buffer);
+        i += 1;
+    }
+};
 
 /// The hardware level: topics between a device (or the vehicle twin standing in for the vehicle) and
 /// its adapters on the vehicle endpoint (`shared/adapters`). They live outside the `sim` and
@@ -233,6 +291,7 @@ pub mod hardware {
             history: 1,
             // A frame source reads each frame at once; a few frames of slack cost little memory.
             buffer: 4,
+            recorder_buffer: 4,
             // One camera (the twin); a subscriber per frame source, a recorder, a test's probe.
             max_publishers: 1,
             max_subscribers: 4,
@@ -241,12 +300,14 @@ pub mod hardware {
     );
 
     /// The twin's thrusters: the setpoints written by the vehicle's thruster sink. As on the vehicle
-    /// endpoint, one process at a time drives the thrusters.
+    /// endpoint, one process at a time drives the thrusters. No history: thrusters that connect late
+    /// never receive old setpoints, however they judge them.
     pub const TWIN_THRUSTERS: Topic<ThrusterSetpoints> = Topic::new(
         "thrusters",
         Qos {
-            history: 1,
+            history: 0,
             buffer: 4,
+            recorder_buffer: 4,
             max_publishers: 1,
             max_subscribers: 4,
             max_nodes: 16,
@@ -288,6 +349,7 @@ mod tests {
             "cabletrack/twin/thrusters"
         );
         assert_eq!(hardware::TWIN_THRUSTERS.qos.max_publishers, 1);
+        assert_eq!(hardware::TWIN_THRUSTERS.qos.history, 0);
     }
 
     #[test]

@@ -74,9 +74,15 @@ pub struct Forces {
 }
 
 impl Forces {
-    /// Each force clipped to [-1, 1] (NaN becomes 0: a broken command must not move the vehicle).
+    /// Each force under the rule for bad values ([`crate::bounds`]): within [-1, 1], a value that is
+    /// not finite 0 (a broken command must not move the vehicle).
     pub fn clamped(self) -> Forces {
-        let c = |f: f64| if f.is_nan() { 0.0 } else { f.clamp(-1.0, 1.0) };
+        self.bounded(&mut crate::bounds::Fixes::default())
+    }
+
+    /// Like [`Forces::clamped`], counting what the rule changed, DOF by DOF.
+    pub fn bounded(self, fixes: &mut crate::bounds::Fixes) -> Forces {
+        let mut c = |f: f64| fixes.note(crate::bounds::unit(f));
         Forces {
             surge: c(self.surge),
             sway: c(self.sway),

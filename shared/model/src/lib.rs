@@ -8,10 +8,12 @@
 //!   renderer and perception of `vision` are checked against, and the ideal perception of the trainer.
 //! - [`thrusters`]: the thruster layout, mapping setpoints to the model's normalised forces.
 //! - [`linear`]: the decoupled linear sway and yaw dynamics in observation coordinates (for LQR).
+//! - [`bounds`]: the one rule for bad values (non-finite is 0, out of range is clamped, both counted).
 //!
 //! Conventions (DESIGN.md): pool frame x forward along the pool, y to the right seen from above, z down,
 //! heading psi from x towards y. Body frame x forward (surge u), y starboard (sway v), yaw rate r.
 
+pub mod bounds;
 pub mod cable;
 pub mod camera;
 pub mod dynamics;

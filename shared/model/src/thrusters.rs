@@ -59,12 +59,13 @@ impl ThrusterLayout {
         &self.matrix
     }
 
-    /// The forces the setpoints produce; each setpoint is clipped to [-1, 1] first (NaN counts as 0).
+    /// The forces the setpoints produce; each setpoint is put under the rule for bad values first
+    /// ([`crate::bounds`]: within [-1, 1], a value that is not finite 0).
     /// Missing setpoints count as 0, extra ones are ignored.
     pub fn forces(&self, setpoints: &[f64]) -> Forces {
         let mut f = [0.0; 3];
         for (j, &t) in setpoints.iter().take(self.len()).enumerate() {
-            let t = if t.is_nan() { 0.0 } else { t.clamp(-1.0, 1.0) };
+            let t = crate::bounds::unit(t).0;
             for (k, fk) in f.iter_mut().enumerate() {
                 *fk += self.matrix[(k, j)] * t;
             }

@@ -3,6 +3,7 @@
 use crate::error::PlotError;
 use crate::heatmap::{self, Heatmap};
 use crate::line::{self, LineChart};
+use crate::picture::{self, Picture};
 use crate::style::{Theme, ensure_font};
 use plotters::prelude::*;
 use std::fs::{self, File, OpenOptions};
@@ -24,6 +25,14 @@ pub enum Panel {
     Lines(LineChart),
     /// A value over a 2-D box: a policy's state-to-action map.
     Heat(Heatmap),
+    /// A grey image with segments over it: a camera frame and the cable found in it.
+    Picture(Picture),
+}
+
+impl From<Picture> for Panel {
+    fn from(picture: Picture) -> Self {
+        Panel::Picture(picture)
+    }
 }
 
 impl From<LineChart> for Panel {
@@ -134,6 +143,7 @@ impl Figure {
                 match panel {
                     Panel::Lines(chart) => line::draw(chart, &area, &theme),
                     Panel::Heat(map) => heatmap::draw(map, &area, &theme),
+                    Panel::Picture(p) => picture::draw(p, &area, &theme),
                 }
                 .map_err(|e| format!("panel {}: {e}", i + 1))?;
             }

@@ -50,10 +50,12 @@ mod figure;
 mod geometry;
 mod heatmap;
 mod line;
+mod picture;
 mod style;
 
 pub use error::PlotError;
 pub use figure::{Figure, MAX_PIXELS, Panel};
 pub use heatmap::{Heatmap, NO_DATA_COLOR};
 pub use line::{LineChart, RefLine, Series};
+pub use picture::Picture;
 pub use style::{PALETTE, diverging_color};

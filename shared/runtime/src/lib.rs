@@ -1,8 +1,9 @@
 //! What every cabletrack process shares, written once: the common command line, tracing, the
 //! configuration, the iceoryx2 node (isolated by a prefix and root, with dead nodes' leftovers
 //! removed at start), clean shutdown on SIGINT/SIGTERM, the blocking wait loop, the lockstep
-//! protocol ([`lockstep`], [`Runtime::serve_steps`]), and the processes a program starts
-//! ([`process`], [`Namespace`]).
+//! protocol ([`lockstep`], [`Runtime::serve_steps`]) with its one judge of stamps
+//! ([`lockstep::Screen`]), the vehicle clock ([`clock`]), rate-limited warnings ([`Tally`],
+//! [`BadValues`]), and the processes a program starts ([`process`], [`Namespace`]).
 //!
 //! A service's `main` reads:
 //!
@@ -20,17 +21,21 @@
 //! }
 //! ```
 
+pub mod clock;
 pub mod lockstep;
 mod namespace;
 mod node;
 pub mod process;
 mod steps;
+mod tally;
 mod wait;
 
+pub use clock::VehicleClock;
 pub use namespace::Namespace;
 pub use node::{
-    CommonArgs, IoxSettings, RESTARTS_ENV, Runtime, RuntimeError, init_tracing, remove_dead_nodes,
-    run, shm_files, shm_leftovers,
+    CommonArgs, IoxSettings, RESTARTS_ENV, Runtime, RuntimeError, create_node, init_tracing,
+    remove_dead_nodes, restarts, run, shm_files, shm_leftovers,
 };
 pub use steps::{Answer, StepInput};
-pub use wait::{Flow, Stopped, Timer, Wake};
+pub use tally::{BadValues, Tally, WARN_EVERY};
+pub use wait::{Flow, Stopped, Timer, Wake, Watch};

@@ -4,7 +4,8 @@ use iceoryx2::config::Config as IoxConfig;
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use messages::{
-    Endpoint, FrameInbox, FrameOutbox, Heartbeat, Inbox, Outbox, PortError, Topic, ports::Payload,
+    Endpoint, FrameInbox, FrameOutbox, FrameTap, Heartbeat, Inbox, Outbox, PortError, Tap, Topic,
+    ports::Payload,
 };
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -47,9 +48,6 @@ pub struct IoxSettings {
     pub root: String,
 }
 
-/// The environment variable in which the supervisor tells a service how often it was restarted.
-pub const RESTARTS_ENV: &str = "CABLETRACK_RESTARTS";
-
 /// An event socket is `<root><prefix><up to 39 digits>.event` and must fit in 108 bytes.
 const MAX_ROOT_AND_PREFIX: usize = 63;
 
@@ -87,6 +85,8 @@ pub enum RuntimeError {
     Iox(String),
     #[error(transparent)]
     Port(#[from] PortError),
+    #[error("vehicle clock: {0}")]
+    Clock(String),
 }
 
 /// A running service: its node, its configuration, its identity.
@@ -102,6 +102,7 @@ pub struct Runtime {
     /// Beats from every wait loop ([`Runtime::serve`]): the supervisor restarts a process that falls
     /// silent.
     heartbeat: Heartbeat,
+    clock: crate::VehicleClock,
 }
 
 /// Sets up logging once per process: `RUST_LOG` (default `info`) filters, colours on a terminal only;
@@ -156,24 +157,20 @@ impl Runtime {
         let scenario: Scenario = config::load(&args.config.join("scenario.toml"))?;
         let learning: LearningParams = config::load(&args.config.join("learning.toml"))?;
         let iox = args.iox.config()?;
+        let clock = crate::VehicleClock::from_env()?;
+        if clock.offset_ns() != 0 {
+            tracing::warn!(
+                offset_ms = clock.offset_ns() / 1_000_000,
+                "this process's vehicle clock is offset from the machine's"
+            );
+        }
         remove_dead_nodes(&iox);
-        let node = NodeBuilder::new()
-            .name(
-                &NodeName::new(name)
-                    .map_err(|e| RuntimeError::Iox(format!("node name `{name}`: {e:?}")))?,
-            )
-            .config(&iox)
-            .create::<ipc::Service>()
-            .map_err(|e| RuntimeError::Iox(format!("cannot create node `{name}`: {e:?}")))?;
+        let node = create_node(name, &iox)?;
         // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait; install it now, so a signal
         // during start-up is seen and not fatal.
         let _ = node.wait(Duration::ZERO);
         // Set by the supervisor when it restarts this service; the heartbeat carries it.
-        let restarts = std::env::var(RESTARTS_ENV)
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0);
-        let heartbeat = Heartbeat::open(&node, args.endpoint, name, restarts)?;
+        let heartbeat = Heartbeat::open(&node, args.endpoint, name, restarts() as usize)?;
         Ok(Runtime {
             name,
             endpoint: args.endpoint,
@@ -184,7 +181,21 @@ impl Runtime {
             iox,
             node,
             heartbeat,
+            clock,
         })
+    }
+
+    /// The vehicle clock: every stamp is taken and judged on it.
+    pub fn clock(&self) -> &crate::VehicleClock {
+        &self.clock
+    }
+
+    /// The judge of the stamps arriving on `input` (a topic name), with the control loop's limits.
+    pub fn screen(&self, input: impl Into<String>) -> crate::lockstep::Screen {
+        crate::lockstep::Screen::new(
+            input,
+            crate::lockstep::ScreenLimits::control(self.scenario.timing.sample_time_s),
+        )
     }
 
     pub fn name(&self) -> &'static str {
@@ -242,6 +253,30 @@ impl Runtime {
         FrameInbox::open(&self.node, self.endpoint)
     }
 
+    /// A recording subscriber of `topic` (see [`messages::Tap`]).
+    pub fn tap<P: Payload>(&self, topic: &Topic<P>) -> Result<Tap<P>, PortError> {
+        Tap::open(&self.node, self.endpoint, topic)
+    }
+
+    /// A recording subscriber of the camera's frames.
+    pub fn frame_tap(&self) -> Result<FrameTap, PortError> {
+        FrameTap::open(&self.node, self.endpoint)
+    }
+
+    /// A listener notified after each message on `topic`, without a subscriber.
+    pub fn listener<P: ?Sized>(
+        &self,
+        topic: &Topic<P>,
+    ) -> Result<iceoryx2::port::listener::Listener<ipc::Service>, PortError> {
+        messages::ports::open_listener(&self.node, &topic.service_name(self.endpoint), &topic.qos)
+    }
+
+    /// Tells the supervisor that this service is ready (its ports are open), where it waits for that
+    /// ([`crate::process::notify_ready`]).
+    pub fn ready(&self) {
+        crate::process::notify_ready();
+    }
+
     /// Blocks until one of `inputs` is notified or the timer fires, calls `on_wake`, and repeats
     /// until `on_wake` says stop or a termination signal arrives. Never spins: between wake-ups the
     /// process sleeps in the kernel.
@@ -253,6 +288,45 @@ impl Runtime {
     ) -> anyhow::Result<Stopped> {
         crate::wait::serve(inputs, timer, &self.heartbeat, on_wake)
     }
+
+    /// Serves one watched input, a watchdog's loop: wakes when `input` is notified (telling data
+    /// from a publisher's death), when nothing was notified on it for `deadline` (iceoryx2's
+    /// deadline attachment), every `tick`, and at the latest after the time `on_wake` returns (the
+    /// core's own deadline); until `on_wake` returns `None` or SIGINT/SIGTERM arrives.
+    pub fn serve_watched(
+        &self,
+        input: &iceoryx2::port::listener::Listener<ipc::Service>,
+        deadline: Duration,
+        tick: Duration,
+        on_wake: impl FnMut(crate::Watch) -> anyhow::Result<Option<Duration>>,
+    ) -> anyhow::Result<Stopped> {
+        crate::wait::serve_watched(input, deadline, tick, &self.heartbeat, on_wake)
+    }
+}
+
+/// The environment variable in which the supervisor tells a restarted service how often it was
+/// restarted (absent or 0 at its first start).
+pub const RESTARTS_ENV: &str = "CABLETRACK_RESTARTS";
+
+/// How often this process's service was restarted (see [`RESTARTS_ENV`]).
+pub fn restarts() -> u32 {
+    std::env::var(RESTARTS_ENV)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0)
+}
+
+/// A node named `name` in the iceoryx2 namespace `iox` (for a program that is not a service, e.g. the
+/// supervisor; a service gets its node from [`Runtime::start`]).
+pub fn create_node(name: &str, iox: &IoxConfig) -> Result<Node<ipc::Service>, RuntimeError> {
+    NodeBuilder::new()
+        .name(
+            &NodeName::new(name)
+                .map_err(|e| RuntimeError::Iox(format!("node name `{name}`: {e:?}")))?,
+        )
+        .config(iox)
+        .create::<ipc::Service>()
+        .map_err(|e| RuntimeError::Iox(format!("cannot create node `{name}`: {e:?}")))
 }
 
 /// Removes what processes that died without cleaning up (e.g. `kill -9`) left in shared memory;

@@ -2,7 +2,9 @@
 //! benchmarks: spawned with their output in a log file (or inherited), optionally bound to die with
 //! their parent; signalled only while they are this program's unreaped children (never pid 0, never
 //! a pid the kernel may have given to someone else); stopped with SIGTERM, a grace period, then
-//! SIGKILL; their exit awaited by blocking on a pidfd, not by polling.
+//! SIGKILL; their exit awaited by blocking on a pidfd, not by polling. A child started with
+//! [`Spawn::ready_pipe`] says when it is ready ([`notify_ready`]), and its starter can block on it
+//! ([`Child::wait_ready`]).
 //!
 //! Linux only: `prctl(PR_SET_PDEATHSIG)`, `pidfd_open(2)` (kernel 5.3 or later), `/proc`.
 
@@ -13,6 +15,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
+/// The environment variable holding the file descriptor a child started with
+/// [`Spawn::ready_pipe`] writes to once it is ready.
+pub const READY_FD: &str = "CABLETRACK_READY_FD";
+
 /// How to start a process.
 pub struct Spawn {
     name: String,
@@ -20,6 +26,7 @@ pub struct Spawn {
     log: Option<PathBuf>,
     stdout: Option<Stdio>,
     die_with_parent: bool,
+    ready_pipe: bool,
 }
 
 impl Spawn {
@@ -37,6 +44,7 @@ impl Spawn {
             log: None,
             stdout: None,
             die_with_parent: false,
+            ready_pipe: false,
         }
     }
 
@@ -87,9 +95,42 @@ impl Spawn {
         self
     }
 
+    /// The process gets the write end of a pipe (its number in [`READY_FD`]) to say it is ready
+    /// ([`notify_ready`]); [`Child::wait_ready`] blocks on the read end.
+    pub fn ready_pipe(mut self) -> Self {
+        self.ready_pipe = true;
+        self
+    }
+
     /// Starts the process.
     pub fn start(mut self) -> std::io::Result<Child> {
         self.cmd.stdin(Stdio::null());
+        let mut ready = None;
+        let mut write_end = None;
+        if self.ready_pipe {
+            let mut fds = [0; 2];
+            // SAFETY: pipe2 fills two new fds; both close on exec unless cleared below.
+            if unsafe { libc::pipe2(fds.as_mut_ptr(), libc::O_CLOEXEC) } != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // SAFETY: the two fds were just created and are owned by nobody else.
+            let (read, write) =
+                unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) };
+            let fd = write.as_raw_fd();
+            self.cmd.env(READY_FD, fd.to_string());
+            // SAFETY: fcntl in the child before exec is async-signal-safe; only this child keeps the
+            // write end open across exec (every other child of ours gets it closed).
+            unsafe {
+                self.cmd.pre_exec(move || {
+                    if libc::fcntl(fd, libc::F_SETFD, 0) == -1 {
+                        return Err(std::io::Error::last_os_error());
+                    }
+                    Ok(())
+                });
+            }
+            ready = Some(read);
+            write_end = Some(write);
+        }
         if let Some(log) = &self.log {
             let file = std::fs::File::create(log)?;
             self.cmd.stdout(file.try_clone()?).stderr(file);
@@ -107,6 +148,8 @@ impl Spawn {
             }
         }
         let inner = self.cmd.spawn()?;
+        // Our copy of the write end goes: the pipe then ends (reads 0) when the child exits.
+        drop(write_end);
         let pidfd = pidfd_open(inner.id());
         Ok(Child {
             name: self.name,
@@ -114,8 +157,41 @@ impl Spawn {
             pidfd,
             status: None,
             log: self.log,
+            ready,
         })
     }
+}
+
+/// Says to whoever started this process with [`Spawn::ready_pipe`] that it is ready (once; later
+/// calls, and a process started otherwise, do nothing).
+pub fn notify_ready() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let Some(fd) = std::env::var(READY_FD)
+            .ok()
+            .and_then(|v| v.parse::<i32>().ok())
+            .filter(|&fd| fd > 2)
+        else {
+            return;
+        };
+        // SAFETY: the fd was left open across exec by our parent for exactly this message; it is
+        // taken over here once (the `Once`) and closed after the write.
+        let mut pipe = unsafe { std::fs::File::from_raw_fd(fd) };
+        if let Err(e) = std::io::Write::write_all(&mut pipe, b"ready\n") {
+            tracing::warn!("cannot tell the parent that this process is ready: {e}");
+        }
+    });
+}
+
+/// Why [`Child::wait_ready`] returned without the child being ready.
+#[derive(Debug, thiserror::Error)]
+pub enum ReadyError {
+    #[error("{name} was not started with a ready pipe")]
+    NoPipe { name: String },
+    #[error("{name} did not say it was ready within {timeout:?}")]
+    Timeout { name: String, timeout: Duration },
+    #[error("{name} ended (or closed its ready pipe) before saying it was ready")]
+    Ended { name: String },
 }
 
 /// A pidfd of `pid`: readable once the process has exited. `None` on kernels without pidfd_open
@@ -135,9 +211,51 @@ pub struct Child {
     /// Set once the exit has been collected: from then on the pid is not ours.
     status: Option<ExitStatus>,
     log: Option<PathBuf>,
+    /// The read end of the ready pipe, until the child said it is ready.
+    ready: Option<OwnedFd>,
 }
 
 impl Child {
+    /// Blocks until the child says it is ready ([`notify_ready`]), or `timeout` passes, or it ends
+    /// first.
+    pub fn wait_ready(&mut self, timeout: Duration) -> Result<(), ReadyError> {
+        let name = self.name.clone();
+        let Some(fd) = self.ready.as_ref() else {
+            return Err(ReadyError::NoPipe { name });
+        };
+        let end = Instant::now() + timeout;
+        loop {
+            let Some(left) = end.checked_duration_since(Instant::now()) else {
+                return Err(ReadyError::Timeout { name, timeout });
+            };
+            let mut poll = libc::pollfd {
+                fd: fd.as_raw_fd(),
+                events: libc::POLLIN,
+                revents: 0,
+            };
+            let ms = left.as_millis().clamp(1, i32::MAX as u128) as i32;
+            // SAFETY: one valid pollfd for the call's duration; EINTR just returns early.
+            let n = unsafe { libc::poll(&mut poll, 1, ms) };
+            if n <= 0 {
+                continue;
+            }
+            let mut buf = [0u8; 16];
+            // SAFETY: reads into a buffer of this length from our own fd.
+            let got = unsafe { libc::read(fd.as_raw_fd(), buf.as_mut_ptr().cast(), buf.len()) };
+            match got {
+                n if n > 0 => {
+                    self.ready = None;
+                    return Ok(());
+                }
+                0 => {
+                    self.ready = None;
+                    return Err(ReadyError::Ended { name });
+                }
+                _ => continue,
+            }
+        }
+    }
+
     pub fn name(&self) -> &str {
         &self.name
     }
@@ -164,6 +282,25 @@ impl Child {
         }
         // SAFETY: kill(2) on our own child, not reaped yet (a zombie at worst), so the pid is ours.
         unsafe { libc::kill(pid, signal) == 0 }
+    }
+
+    /// The pid of its child process named `name` (a supervisor's service), if it has one now.
+    pub fn child(&self, name: &str) -> Option<u32> {
+        self.pid()
+            .into_iter()
+            .flat_map(children)
+            .find(|(_, n)| is_named(n, name))
+            .map(|(p, _)| p)
+    }
+
+    /// Sends `signal` to its child process named `name` (a supervisor's service): only a live child
+    /// of a process of ours is ever signalled, never a process group. Returns the child's pid.
+    pub fn signal_child(&self, name: &str, signal: i32) -> Option<u32> {
+        let pid = self.child(name)?;
+        let pid = libc::pid_t::try_from(pid).ok().filter(|&p| p > 0)?;
+        // SAFETY: kill(2) on a process that is, as just read from /proc, a child of our own running
+        // (unreaped) child; a pid of 0 or below (a process group) is never passed.
+        (unsafe { libc::kill(pid, signal) } == 0).then_some(pid as u32)
     }
 
     /// Its exit status, if it has exited (collected now or earlier).
@@ -330,8 +467,15 @@ fn wait_readable(fds: &[Option<&OwnedFd>], timeout: Duration) {
     }
 }
 
+/// Whether a process's name as the kernel keeps it (`/proc/PID/comm`: at most 15 bytes) is `name`.
+pub fn is_named(comm: &str, name: &str) -> bool {
+    const COMM_LEN: usize = 15;
+    comm == name
+        || (name.len() > COMM_LEN && name.is_char_boundary(COMM_LEN) && comm == &name[..COMM_LEN])
+}
+
 /// The children of process `pid` (started by any of its threads), in pid order: (pid, program
-/// name), e.g. a supervisor's services.
+/// name as the kernel keeps it, at most 15 bytes: see [`is_named`]), e.g. a supervisor's services.
 pub fn children(pid: u32) -> Vec<(u32, String)> {
     let mut pids: Vec<u32> = std::fs::read_dir(format!("/proc/{pid}/task"))
         .into_iter()
@@ -398,6 +542,43 @@ mod tests {
             polite.stop(Duration::from_secs(10)).signal(),
             Some(libc::SIGTERM)
         );
+    }
+
+    #[test]
+    fn a_child_says_when_it_is_ready() {
+        // The shell writes to the fd it was given: it is ready.
+        let mut c = sh(&format!("echo ready >&${}; exec sleep 30", READY_FD))
+            .ready_pipe()
+            .start()
+            .unwrap();
+        c.wait_ready(Duration::from_secs(10)).expect("it said so");
+        c.stop(Duration::from_secs(5));
+        // It ends without saying it: the wait ends at once, not at the timeout.
+        let mut quiet = sh("exit 0").ready_pipe().start().unwrap();
+        let t0 = Instant::now();
+        assert!(matches!(
+            quiet.wait_ready(Duration::from_secs(30)),
+            Err(ReadyError::Ended { .. })
+        ));
+        assert!(t0.elapsed() < Duration::from_secs(10));
+        // It says nothing and runs on: the timeout.
+        let mut silent = sh("exec sleep 30").ready_pipe().start().unwrap();
+        assert!(matches!(
+            silent.wait_ready(Duration::from_millis(100)),
+            Err(ReadyError::Timeout { .. })
+        ));
+        // A child started without the pipe is not given one.
+        let mut other = sh(&format!("test -z \"${}\"", READY_FD)).start().unwrap();
+        assert!(
+            other
+                .wait_timeout(Duration::from_secs(10))
+                .unwrap()
+                .success()
+        );
+        assert!(matches!(
+            other.wait_ready(Duration::ZERO),
+            Err(ReadyError::NoPipe { .. })
+        ));
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! Serving one input topic in lockstep: each step's message goes through the service's core once,
-//! a repeated step gets the answer already computed, an older step is dropped. The loop every
-//! single-input service (camera, perception, the behaviours, the surge controller) would otherwise
-//! write out itself.
+//! a repeated step gets the answer already computed, an older, stale or absurd step is refused
+//! (`lockstep::Screen`). The loop every single-input service (camera, perception, the behaviours,
+//! the surge controller) would otherwise write out itself.
 
 use crate::Runtime;
 use crate::lockstep::{Once, Outcome};
@@ -19,6 +19,8 @@ pub trait StepInput {
         Self: 'a;
     /// The listener notified when a message arrives.
     fn listener(&self) -> &Listener<ipc::Service>;
+    /// The topic's service name, for logs.
+    fn name(&self) -> &str;
     /// Takes the next unread message, if any, and hands it to `f` with its stamp.
     fn next_with<R>(
         &self,
@@ -31,6 +33,10 @@ impl<P: Payload + Stamped> StepInput for Inbox<P> {
 
     fn listener(&self) -> &Listener<ipc::Service> {
         Inbox::listener(self)
+    }
+
+    fn name(&self) -> &str {
+        self.service()
     }
 
     fn next_with<R>(
@@ -46,6 +52,10 @@ impl StepInput for FrameInbox {
 
     fn listener(&self) -> &Listener<ipc::Service> {
         FrameInbox::listener(self)
+    }
+
+    fn name(&self) -> &str {
+        self.service()
     }
 
     fn next_with<R>(
@@ -74,34 +84,48 @@ impl<'a, O> Answer<'a, O> {
 }
 
 impl Runtime {
-    /// Serves `input` until a termination signal (or `send` says stop): every message in order; a
-    /// new step through `core`, whose output goes to `send` as [`Answer::New`]; the step answered
-    /// last, again, as [`Answer::Again`]; an older step dropped. `state` (the service's core, say)
-    /// is lent to both in turn.
+    /// Serves `input` until a termination signal (or `send` says stop): every message in order,
+    /// its stamp judged on the vehicle clock ([`crate::lockstep::Screen`]); a new step through
+    /// `core`, whose output goes to `send` as [`Answer::New`]; the step answered last, again, as
+    /// [`Answer::Again`]; an older, stale or absurd step refused (counted and logged). A step whose
+    /// core fails ends the loop with the error, unless the core refuses it itself: `Ok(None)` (a
+    /// message it cannot use, which it has logged) leaves the step unanswered and unaccepted. `state`
+    /// (the service's core, say) is lent to both in turn.
     pub fn serve_steps<I: StepInput, S, O: Clone>(
         &self,
         input: &I,
         state: &mut S,
-        mut core: impl FnMut(&mut S, I::Msg<'_>) -> anyhow::Result<O>,
+        mut core: impl FnMut(&mut S, I::Msg<'_>) -> anyhow::Result<Option<O>>,
         mut send: impl FnMut(&mut S, Answer<'_, O>) -> anyhow::Result<Flow>,
     ) -> anyhow::Result<Stopped> {
-        let mut once = Once::<O>::new();
+        let mut once = Once::<O>::new(self.screen(input.name()));
+        let clock = *self.clock();
         self.serve(&[input.listener()], Timer::None, |_| {
             loop {
                 let answered = input.next_with(|stamp, msg| {
-                    let seq = stamp.seq;
-                    once.step(seq, || core(state, msg)).map(|o| (seq, o))
+                    let now = clock.now_ns();
+                    match once.check(stamp, now) {
+                        Err(r) => Ok(Outcome::Refused(r)),
+                        Ok(Some(out)) => Ok(Outcome::Repeat(out)),
+                        Ok(None) => match core(state, msg) {
+                            Ok(Some(out)) => {
+                                once.commit(stamp, now, out.clone());
+                                Ok(Outcome::Fresh(out))
+                            }
+                            Ok(None) => Ok(Outcome::Refused(crate::lockstep::Refusal::Unusable {
+                                seq: stamp.seq,
+                            })),
+                            Err(e) => Err(e),
+                        },
+                    }
                 })?;
                 let Some(answered) = answered else {
                     return Ok(Flow::Continue);
                 };
                 let flow = match answered? {
-                    (_, Outcome::Fresh(o)) => send(state, Answer::New(&o))?,
-                    (_, Outcome::Repeat(o)) => send(state, Answer::Again(&o))?,
-                    (seq, Outcome::Stale) => {
-                        tracing::debug!(seq, last = ?once.last_seq(), "an older step: dropped");
-                        Flow::Continue
-                    }
+                    Outcome::Fresh(o) => send(state, Answer::New(&o))?,
+                    Outcome::Repeat(o) => send(state, Answer::Again(&o))?,
+                    Outcome::Refused(_) => Flow::Continue,
                 };
                 if flow == Flow::Stop {
                     return Ok(Flow::Stop);

@@ -104,10 +104,10 @@ pub(crate) fn serve(
         }
         .map_err(|e| anyhow::anyhow!("waiting: {e:?}"))?;
         match result {
-            // A blocked wait sees a signal as Interrupt, the next one as TerminationRequest: both end.
-            WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => {
-                return Ok(Stopped::Signal);
-            }
+            WaitSetRunResult::TerminationRequest => return Ok(Stopped::Signal),
+            // Any signal interrupts a blocked wait (SIGCONT after a stall, SIGCHLD, ...). Wait
+            // again: a termination request is seen by the WaitSet before it blocks.
+            WaitSetRunResult::Interrupt => continue,
             WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
         }
         heartbeat.beat()?;
@@ -129,5 +129,98 @@ pub(crate) fn serve(
         if on_wake(wake)? == Flow::Stop {
             return Ok(Stopped::Done);
         }
+    }
+}
+
+/// Why a watched loop woke ([`crate::Runtime::serve_watched`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Watch {
+    /// The watched input was notified: `data` arrived and/or a publisher's process `died`.
+    Input { data: bool, publisher_died: bool },
+    /// Nothing was notified on the watched input for its deadline (iceoryx2's deadline attachment).
+    Missed,
+    /// The periodic tick, or the time the handler asked to be woken at.
+    Tick,
+}
+
+/// Serves one watched input (a watchdog): wakes when it is notified, when it was not notified for
+/// `deadline`, every `tick`, and at the latest after the time `on_wake` returns; until `on_wake`
+/// returns `None` or a termination signal arrives.
+pub(crate) fn serve_watched(
+    input: &Listener<ipc::Service>,
+    deadline: Duration,
+    tick: Duration,
+    heartbeat: &Heartbeat,
+    mut on_wake: impl FnMut(Watch) -> anyhow::Result<Option<Duration>>,
+) -> anyhow::Result<Stopped> {
+    let waitset = WaitSetBuilder::new()
+        .create::<ipc::Service>()
+        .map_err(|e| anyhow::anyhow!("cannot create a WaitSet: {e:?}"))?;
+    let watched = waitset.attach_deadline(input, deadline).map_err(|e| {
+        anyhow::anyhow!("cannot watch a listener with a {deadline:?} deadline: {e:?}")
+    })?;
+    let ticker = waitset
+        .attach_interval(tick)
+        .map_err(|e| anyhow::anyhow!("cannot attach a {tick:?} interval: {e:?}"))?;
+    // The heartbeat, as in `serve`.
+    let _pulse = waitset
+        .attach_interval(health::HEARTBEAT_PERIOD)
+        .map_err(|e| anyhow::anyhow!("cannot attach the heartbeat's interval: {e:?}"))?;
+    heartbeat.beat()?;
+    // What arrived before the watch began (a topic's history) is looked at first.
+    let mut next = match on_wake(Watch::Input {
+        data: true,
+        publisher_died: false,
+    })? {
+        Some(t) => t,
+        None => return Ok(Stopped::Done),
+    };
+    let mut asked_at = Instant::now();
+    loop {
+        let (mut notified, mut missed, mut ticked) = (false, false, false);
+        let mut handle = |id: WaitSetAttachmentId<ipc::Service>| {
+            if id.has_missed_deadline(&watched) {
+                missed = true;
+            } else if id.has_event_from(&watched) {
+                notified = true;
+            } else if id.has_event_from(&ticker) {
+                ticked = true;
+            }
+            CallbackProgression::Continue
+        };
+        let result = waitset
+            .wait_and_process_once_with_timeout(
+                &mut handle,
+                next.saturating_sub(asked_at.elapsed()),
+            )
+            .map_err(|e| anyhow::anyhow!("waiting: {e:?}"))?;
+        match result {
+            WaitSetRunResult::TerminationRequest => return Ok(Stopped::Signal),
+            // Not a request to stop (see `serve`): wait again.
+            WaitSetRunResult::Interrupt => continue,
+            WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
+        }
+        heartbeat.beat()?;
+        if !(notified || missed || ticked) && asked_at.elapsed() < next {
+            // Only the heartbeat's interval: nothing for the handler yet.
+            continue;
+        }
+        let wake = if notified {
+            let n = messages::ports::take_notifications(input);
+            Watch::Input {
+                data: n.data,
+                publisher_died: n.publisher_died,
+            }
+        } else if missed {
+            Watch::Missed
+        } else {
+            let _ = ticked;
+            Watch::Tick
+        };
+        match on_wake(wake)? {
+            Some(t) => next = t,
+            None => return Ok(Stopped::Done),
+        }
+        asked_at = Instant::now();
     }
 }

@@ -31,7 +31,9 @@ pub fn config_dir() -> PathBuf {
     repo_root().join("config")
 }
 
-/// A release binary of the workspace (`scripts/test` builds them all before the tests run).
+/// A release binary of the workspace (`scripts/test` builds them all before the tests run), built
+/// from the current source: a binary older than one of its source files (cargo's dependency file
+/// beside it lists them) fails the test with the command that rebuilds it.
 pub fn binary(name: &str) -> PathBuf {
     // Tests run from target/release/deps/; the binaries sit in target/release/.
     let exe = std::env::current_exe().expect("the test binary's path");
@@ -45,7 +47,45 @@ pub fn binary(name: &str) -> PathBuf {
         "{} is not built: run `cargo build --release --workspace --bins` first (scripts/test does)",
         path.display()
     );
+    if let Some(source) = newer_source(&path) {
+        panic!(
+            "{} is older than its source {}: run `cargo build --release --workspace --bins` \
+             (scripts/test does) so the test runs the current code",
+            path.display(),
+            source.display()
+        );
+    }
     path
+}
+
+/// A source file of `binary` modified after it was built, from cargo's dependency file
+/// (`<binary>.d`: `<binary>: <source> <source> ...`, spaces in paths escaped); `None` when all are
+/// older or there is no dependency file.
+pub fn newer_source(binary: &Path) -> Option<PathBuf> {
+    let built = std::fs::metadata(binary).and_then(|m| m.modified()).ok()?;
+    let deps = std::fs::read_to_string(binary.with_extension("d")).ok()?;
+    let line = deps.lines().next()?;
+    let (_, sources) = line.split_once(": ")?;
+    let mut paths = Vec::new();
+    let mut current = String::new();
+    let mut chars = sources.chars();
+    while let Some(c) = chars.next() {
+        match c {
+            '\\' => current.extend(chars.next()),
+            ' ' => paths.push(std::mem::take(&mut current)),
+            c => current.push(c),
+        }
+    }
+    paths.push(current);
+    paths
+        .into_iter()
+        .filter(|p| !p.is_empty())
+        .map(PathBuf::from)
+        .find(|p| {
+            std::fs::metadata(p)
+                .and_then(|m| m.modified())
+                .is_ok_and(|t| t > built)
+        })
 }
 
 /// An isolated iceoryx2 namespace for one test (the runtime's: removed with everything in it when
@@ -127,22 +167,13 @@ impl Process {
 
     /// The pid of this process's child named `name` (a supervisor's service), if it has one now.
     pub fn service(&self, name: &str) -> Option<u32> {
-        self.child
-            .pid()
-            .into_iter()
-            .flat_map(children)
-            .find(|(_, n)| n == name)
-            .map(|(p, _)| p)
+        self.child.child(name)
     }
 
     /// Sends `signal` to this process's child named `name` (a supervisor's service): only a live
     /// child of this test's own process is ever signalled. Returns its pid.
     pub fn signal_service(&self, name: &str, signal: i32) -> Option<u32> {
-        let pid = self.service(name)?;
-        let pid = libc::pid_t::try_from(pid).ok().filter(|&p| p > 0)?;
-        // SAFETY: kill(2) on a process that is, as just read from /proc, a child of this test's own
-        // running child; a pid of 0 or below (a process group) is never passed.
-        (unsafe { libc::kill(pid, signal) } == 0).then_some(pid as u32)
+        self.child.signal_child(name, signal)
     }
 }
 
@@ -260,4 +291,50 @@ pub fn supervisor(ns: &Namespace, mesh: &Path, seed: u64, sets: &[(&str, String)
     let args = supervisor::command_line(mesh, None, seed, &ns.iox, sets);
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     Process::start(ns, &binary("supervisor"), &args)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A binary older than one of its sources is found out; one newer than all of them is not.
+    #[test]
+    fn a_binary_older_than_its_source_is_found() {
+        let dir = tempfile::tempdir().unwrap();
+        let (bin, old, new) = (
+            dir.path().join("svc"),
+            dir.path().join("old.rs"),
+            dir.path().join("with space.rs"),
+        );
+        std::fs::write(&old, "").unwrap();
+        std::fs::write(&bin, "").unwrap();
+        std::fs::write(
+            bin.with_extension("d"),
+            format!(
+                "{}: {} {}\n",
+                bin.display(),
+                old.display(),
+                new.display().to_string().replace(' ', "\\ ")
+            ),
+        )
+        .unwrap();
+        std::fs::write(&new, "").unwrap();
+        let hour = std::time::Duration::from_secs(3600);
+        let now = std::time::SystemTime::now();
+        let set = |p: &Path, t| {
+            std::fs::File::options()
+                .write(true)
+                .open(p)
+                .unwrap()
+                .set_modified(t)
+                .unwrap()
+        };
+        set(&old, now - 2 * hour);
+        set(&bin, now - hour);
+        set(&new, now);
+        assert_eq!(newer_source(&bin), Some(new.clone()));
+        set(&new, now - 2 * hour);
+        assert_eq!(newer_source(&bin), None);
+        assert_eq!(newer_source(&dir.path().join("missing")), None);
+    }
 }

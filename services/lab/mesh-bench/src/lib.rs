@@ -23,8 +23,10 @@
 //! repeats and compares the mesh's time per step with (a) + (b).
 //!
 //! `mesh-bench vehicle` ([`vehicle`]) measures the vehicle endpoint instead: camera-to-thruster
-//! latency at the vehicle's 5 Hz over many steps, and every service's CPU and memory.
+//! latency at the vehicle's 5 Hz over many steps, and every service's CPU and memory; `mesh-bench drill`
+//! ([`drill`]) runs the fault drill of the vehicle's safety layer.
 
+pub mod drill;
 pub mod probe;
 pub mod procfs;
 pub mod report;

@@ -82,8 +82,63 @@ struct VehicleArgs {
     markdown: Option<PathBuf>,
 }
 
+#[derive(Args)]
+struct RecordArgs {
+    /// Episodes per run (the first one is the warm-up).
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(2..))]
+    episodes: u32,
+    /// Pairs of runs (recorder off, recorder on); medians are reported.
+    #[arg(long, default_value_t = 7, value_parser = clap::value_parser!(u64).range(1..))]
+    repeats: u64,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// The recorder keeps the images of every K-th step (the sim mesh's default: 10).
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..))]
+    frame_every: u32,
+    /// Directory holding scenario.toml and learning.toml.
+    #[arg(long, default_value = "config")]
+    config: PathBuf,
+    /// The mesh file the supervisor runs.
+    #[arg(long, default_value = "config/sim-mesh.toml")]
+    mesh: PathBuf,
+    /// Write every run's figures here as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct DrillArgs {
+    /// Random SIGKILLs across the vehicle services.
+    #[arg(long, default_value_t = 100)]
+    kills: u32,
+    /// Seed of the random choices and of the mesh.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Step one's episodes in simulation, before the vehicle run (the drill needs a policy, not a
+    /// good one).
+    #[arg(long, default_value_t = 10)]
+    sim_episodes: u32,
+    /// Directory holding scenario.toml, learning.toml and twin.toml.
+    #[arg(long, default_value = "config")]
+    config: PathBuf,
+    /// The mesh files of step one and of the vehicle.
+    #[arg(long, default_value = "config/sim-mesh.toml")]
+    sim_mesh: PathBuf,
+    #[arg(long, default_value = "config/vehicle.toml")]
+    vehicle_mesh: PathBuf,
+    /// Write the figures here as JSON (and the vehicle mesh's log beside it, as .log).
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
 #[derive(Subcommand)]
 enum Hidden {
+    /// The flight recorder's cost: the mesh's steps/s with the recorder off and on (pairs of runs,
+    /// swapping places every repeat), the recorder's CPU per step and the record's bytes per step.
+    Record(RecordArgs),
+    /// The fault drill of the vehicle's safety layer: kills, stalls, a second allocator, a camera
+    /// with its clock stepped back and a rogue publisher, in one run of the vehicle mesh.
+    Drill(DrillArgs),
     /// The vehicle endpoint: camera-to-thruster latency at 5 Hz over many steps, CPU and memory of
     /// every service (step one runs first, in simulation, for the policy the vehicle starts from).
     Vehicle(VehicleArgs),
@@ -105,9 +160,23 @@ enum Hidden {
 
 fn main() -> ExitCode {
     let command_line = Cli::parse();
+    if let Some(Hidden::Record(args)) = &command_line.command {
+        runtime::init_tracing();
+        return match record(args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(err) => cli::fail("mesh-bench", err.as_ref()),
+        };
+    }
     if let Some(Hidden::Vehicle(args)) = &command_line.command {
         runtime::init_tracing();
         return match vehicle(args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(err) => cli::fail("mesh-bench", err.as_ref()),
+        };
+    }
+    if let Some(Hidden::Drill(args)) = &command_line.command {
+        runtime::init_tracing();
+        return match drill(args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(err) => cli::fail("mesh-bench", err.as_ref()),
         };
@@ -165,6 +234,31 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
         args.json.as_deref(),
         args.markdown.as_deref(),
     )
+}
+
+fn drill(args: &DrillArgs) -> Result<()> {
+    let canon = |p: &PathBuf, what: &str| {
+        p.canonicalize()
+            .with_context(|| format!("{what} {}", p.display()))
+    };
+    let config_dir = canon(&args.config, "the config directory")?;
+    let scenario: config::Scenario = config::load(&config_dir.join("scenario.toml"))?;
+    let exe = std::env::current_exe()?;
+    let setup = mesh_bench::drill::DrillSetup {
+        bin_dir: exe.parent().context("the bench's directory")?.to_owned(),
+        sim_mesh: canon(&args.sim_mesh, "the mesh file")?,
+        vehicle_mesh: canon(&args.vehicle_mesh, "the mesh file")?,
+        config_dir,
+        kills: args.kills,
+        seed: args.seed,
+        sim_episodes: args.sim_episodes,
+        period_s: scenario.timing.sample_time_s,
+        keep_log: args.json.as_ref().map(|j| j.with_extension("log")),
+    };
+    let run = mesh_bench::drill::run(&setup)?;
+    let markdown = run.markdown();
+    cli::outln!("{}", serde_json::to_string_pretty(&run)?)?;
+    report(&run, &markdown, args.json.as_deref(), None)
 }
 
 /// Prints the Markdown report and writes it and the figures (JSON) where asked.
@@ -225,6 +319,7 @@ fn bench(args: &Bench) -> Result<()> {
             seed: args.seed + r,
             warmup,
             probe_fifo: (args.probe_fifo > 0).then_some(args.probe_fifo),
+            record_frame_every: None,
         };
         // The two mesh runs swap places every repeat, so a drift of the machine favours neither.
         let (mesh, mesh_probe) = if r % 2 == 0 {
@@ -283,4 +378,97 @@ fn bench(args: &Bench) -> Result<()> {
         args.json.as_deref(),
         args.markdown.as_deref(),
     )
+}
+
+/// The recorder's cost, pairs of runs of the same seed.
+fn record(args: &RecordArgs) -> Result<()> {
+    let canon = |p: &PathBuf, what: &str| {
+        p.canonicalize()
+            .with_context(|| format!("{what} {}", p.display()))
+    };
+    let config_dir = canon(&args.config, "the config directory")?;
+    let mesh_file = canon(&args.mesh, "the mesh file")?;
+    let scenario: config::Scenario = config::load(&config_dir.join("scenario.toml"))?;
+    let exe = std::env::current_exe()?;
+    let episode_steps = scenario.timing.max_steps as u64 + 1;
+    eprintln!(
+        "mesh-bench record: {} pairs of runs of {} episodes, the recorder keeping the images of every {} steps (load average {:.2})",
+        args.repeats,
+        args.episodes,
+        args.frame_every,
+        load()
+    );
+    let mut pairs = Vec::new();
+    for r in 0..args.repeats {
+        let setup = MeshSetup {
+            bin_dir: exe.parent().context("the bench's directory")?.to_owned(),
+            config_dir: config_dir.clone(),
+            mesh_file: mesh_file.clone(),
+            episodes: args.episodes,
+            seed: args.seed + r,
+            warmup: episode_steps,
+            probe_fifo: None,
+            record_frame_every: None,
+        };
+        let on = MeshSetup {
+            record_frame_every: Some(args.frame_every),
+            ..setup.clone()
+        };
+        // The two runs swap places every repeat, so a drift of the machine favours neither.
+        let (off, on) = if r % 2 == 0 {
+            let off = runs::mesh(&setup, false).context("the mesh, recorder off")?;
+            (
+                off,
+                runs::mesh(&on, false).context("the mesh, recorder on")?,
+            )
+        } else {
+            let on = runs::mesh(&on, false).context("the mesh, recorder on")?;
+            (
+                runs::mesh(&setup, false).context("the mesh, recorder off")?,
+                on,
+            )
+        };
+        let rec = on.processes.iter().find(|p| p.name == "recorder");
+        eprintln!(
+            "  repeat {}/{}: recorder off {} steps/s, on {} steps/s ({:.3}); recorder {:.1} µs CPU per step; record {:.1} MB",
+            r + 1,
+            args.repeats,
+            thousands(off.steps_per_s),
+            thousands(on.steps_per_s),
+            on.steps_per_s / off.steps_per_s,
+            rec.map_or(f64::NAN, |p| p.cpu_us_per_step),
+            on.record_bytes as f64 / 1e6,
+        );
+        pairs.push((off, on));
+    }
+    let median =
+        |f: &dyn Fn(&(runs::MeshRun, runs::MeshRun)) -> f64| stats::median(pairs.iter().map(f));
+    let off = median(&|p| p.0.steps_per_s);
+    let on = median(&|p| p.1.steps_per_s);
+    let ratio = median(&|p| p.1.steps_per_s / p.0.steps_per_s);
+    let cpu = median(&|p| {
+        p.1.processes
+            .iter()
+            .find(|u| u.name == "recorder")
+            .map_or(f64::NAN, |u| u.cpu_us_per_step)
+    });
+    // Bytes per step over the whole run (every step is recorded, the warm-up too).
+    let bytes_per_step = median(&|p| p.1.record_bytes as f64 / p.1.last_seq.max(1) as f64);
+    let markdown = format!(
+        "| flight recorder, {} pairs of runs x {} episodes, images of every {} steps | median |\n|---|---:|\n\
+         | mesh, recorder off | {} steps/s |\n\
+         | mesh, recorder on | {} steps/s |\n\
+         | on / off (median of the pairs' ratios) | {:.3} |\n\
+         | recorder's CPU per step | {:.1} µs |\n\
+         | record per step | {:.1} kB |\n",
+        args.repeats,
+        args.episodes,
+        args.frame_every,
+        thousands(off),
+        thousands(on),
+        ratio,
+        cpu,
+        bytes_per_step / 1e3,
+    );
+    report(&pairs, &markdown, args.json.as_deref(), None)
 }

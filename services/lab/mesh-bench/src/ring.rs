@@ -197,9 +197,12 @@ pub fn run(rt: &Runtime, role: Role, warmup: u64, steps: u64) -> Result<NodeRepo
                 for (i, inbox) in inputs.iter().enumerate() {
                     for cmd in inbox.drain()? {
                         note(cmd.stamp.seq, cmd.stamp.time_ns);
-                        if let Ok(Some((_, all))) =
-                            gather.put(i, cmd.stamp.seq, cmd, std::time::Instant::now())
-                        {
+                        if let Ok(Some((_, all))) = gather.put(
+                            i,
+                            (cmd.stamp.epoch, cmd.stamp.seq),
+                            cmd,
+                            std::time::Instant::now(),
+                        ) {
                             out.send(ThrusterSetpoints {
                                 stamp: restamp(all[0].stamp),
                                 count: 4,

@@ -40,6 +40,48 @@ pub fn spawn(
         .with_context(|| format!("starting {}", program.display()))
 }
 
+/// Runs step one in simulation, briefly and with ideal perception, in `ns`: the policy a vehicle run
+/// starts from (a policy, not a good one). Returns the directory of its checkpoints.
+pub fn brief_step_one(
+    ns: &Namespace,
+    bin_dir: &Path,
+    sim_mesh: &Path,
+    config_dir: &Path,
+    seed: u64,
+    episodes: u32,
+    who: &str,
+) -> Result<PathBuf> {
+    let scratch = ns.scratch();
+    let step_one = scratch.join("step-one");
+    let args = supervisor::command_line(
+        sim_mesh,
+        Some(config_dir),
+        seed,
+        &ns.iox,
+        &[
+            ("episodes", episodes.to_string()),
+            ("eyes", "ideal".into()),
+            ("state", step_one.display().to_string()),
+            ("json", step_one.join("run.json").display().to_string()),
+        ],
+    );
+    eprintln!("{who}: step one, {episodes} episodes in simulation");
+    let mut sup = spawn(
+        "supervisor (step one)",
+        &bin_dir.join("supervisor"),
+        &args,
+        &[],
+        scratch.join("step-one.log"),
+    )?;
+    if !sup
+        .wait_timeout(Duration::from_secs(600))
+        .is_some_and(|s| s.success())
+    {
+        bail!("step one failed\n{}", sup.tail(30));
+    }
+    Ok(step_one)
+}
+
 /// One reading while a run goes on: the step the loop is at and its processes.
 #[derive(Clone, Debug)]
 pub struct Tick {
@@ -78,7 +120,7 @@ pub struct ProcessUse {
 }
 
 /// The order processes are listed in: the loop's.
-const ORDER: [&str; 10] = [
+const ORDER: [&str; 12] = [
     "simulator",
     "vehicle-twin",
     "camera",
@@ -87,7 +129,9 @@ const ORDER: [&str; 10] = [
     "yaw-behaviour",
     "surge-controller",
     "thruster-allocator",
+    "thruster-driver",
     "monitor",
+    "recorder",
     "supervisor",
 ];
 
@@ -227,6 +271,8 @@ pub struct MeshSetup {
     pub warmup: u64,
     /// Run the probe at this real-time (`SCHED_FIFO`) priority; `None`: the normal one.
     pub probe_fifo: Option<i32>,
+    /// Keep a flight record of the run (the recorder on, with the images of every K-th step).
+    pub record_frame_every: Option<u32>,
 }
 
 /// One run of the real mesh.
@@ -247,6 +293,10 @@ pub struct MeshRun {
     pub probe: Option<ProbeUse>,
     /// Shared-memory files left after the run (should be none).
     pub leftovers: usize,
+    /// With the recorder on: the flight record's size (every part), bytes.
+    pub record_bytes: u64,
+    /// Without the probe: the last step seen (the run's steps, the warm-up included).
+    pub last_seq: u64,
 }
 
 /// Runs the mesh once through the supervisor, with images.
@@ -255,18 +305,29 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
     let scratch = ns.scratch();
     let node = probe::node(&ns.iox, "mesh-bench")?;
     let watcher = Watcher::open(&node, with_probe)?;
+    let record_dir = scratch.join("record");
+    let mut sets = vec![
+        ("episodes", setup.episodes.to_string()),
+        ("eyes", "images".to_owned()),
+        ("json", scratch.join("run.json").display().to_string()),
+        // A fresh state directory: the behaviours start from scratch, never from an earlier run.
+        ("state", scratch.join("state").display().to_string()),
+    ];
+    if let Some(k) = setup.record_frame_every {
+        std::fs::create_dir_all(&record_dir)
+            .with_context(|| format!("creating {}", record_dir.display()))?;
+        sets.push((
+            "record",
+            record_dir.join("flight.mcap").display().to_string(),
+        ));
+        sets.push(("frame_every", k.to_string()));
+    }
     let args = supervisor::command_line(
         &setup.mesh_file,
         Some(&setup.config_dir),
         setup.seed,
         &ns.iox,
-        &[
-            ("episodes", setup.episodes.to_string()),
-            ("eyes", "images".to_owned()),
-            ("json", scratch.join("run.json").display().to_string()),
-            // A fresh state directory: the behaviours start from scratch, never from an earlier run.
-            ("state", scratch.join("state").display().to_string()),
-        ],
+        &sets,
     );
     let started = Instant::now();
     let mut sup = spawn(
@@ -294,6 +355,7 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
             })?;
             let (a, b) = (&ticks[w.0], &ticks[w.1]);
             run.steps = b.seq - a.seq;
+            run.last_seq = ticks.last().map_or(0, |t| t.seq);
             run.steps_per_s = run.steps as f64 / ((b.t_ns - a.t_ns) as f64 * 1e-9);
             run.processes = usage(&ticks, w);
             run.other_cores = other_cores(&ticks, w);
@@ -323,6 +385,14 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
     }
     drop(node);
     run.leftovers = ns.leftovers().len();
+    if setup.record_frame_every.is_some() {
+        // The record's parts: flight.mcap, flight.1.mcap, ...
+        for entry in std::fs::read_dir(&record_dir)
+            .with_context(|| format!("reading {}", record_dir.display()))?
+        {
+            run.record_bytes += entry?.metadata()?.len();
+        }
+    }
     Ok(run)
 }
 

@@ -9,7 +9,7 @@
 //! included. Meanwhile the bench reads each process in `/proc` every [`TICK`].
 
 use crate::procfs;
-use crate::runs::{ProcessUse, Tick, spawn, usage};
+use crate::runs::{ProcessUse, Tick, brief_step_one, spawn, usage};
 use crate::stats::{Summary, now_ns};
 use anyhow::{Context, Result, bail};
 use runtime::Namespace;
@@ -67,6 +67,8 @@ pub struct VehicleRun {
     pub restarts: usize,
     /// Shared-memory files left after the run (should be none).
     pub leftovers: usize,
+    /// The flight record's size (every part, every frame), bytes, and the frames timed with it.
+    pub record_bytes: u64,
 }
 
 /// Runs step one in simulation, then the vehicle mesh at `speed`, and measures it.
@@ -74,36 +76,15 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     let ns = Namespace::new("v");
     let scratch = ns.scratch();
     // Step one: the policy the vehicle starts from.
-    let step_one = scratch.join("step-one");
-    let args = supervisor::command_line(
+    let step_one = brief_step_one(
+        &ns,
+        &setup.bin_dir,
         &setup.sim_mesh,
-        Some(&setup.config_dir),
+        &setup.config_dir,
         setup.seed,
-        &ns.iox,
-        &[
-            ("episodes", setup.sim_episodes.to_string()),
-            ("eyes", "ideal".into()),
-            ("state", step_one.display().to_string()),
-            ("json", step_one.join("run.json").display().to_string()),
-        ],
-    );
-    eprintln!(
-        "mesh-bench: vehicle: step one, {} episodes in simulation",
-        setup.sim_episodes
-    );
-    let mut sup = spawn(
-        "supervisor (step one)",
-        &setup.bin_dir.join("supervisor"),
-        &args,
-        &[],
-        scratch.join("step-one.log"),
+        setup.sim_episodes,
+        "mesh-bench: vehicle",
     )?;
-    if !sup
-        .wait_timeout(Duration::from_secs(600))
-        .is_some_and(|s| s.success())
-    {
-        bail!("step one failed\n{}", sup.tail(30));
-    }
 
     // Step two on the twin, at the vehicle's pace.
     let trials = setup.trials();
@@ -127,8 +108,14 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
                 scratch.join("step-two/trace.jsonl").display().to_string(),
             ),
             ("latency", format!("--latency={}", latency_file.display())),
+            // The flight record, as a vehicle keeps it (every frame), in the run's own directory.
+            (
+                "record",
+                scratch.join("record/flight.mcap").display().to_string(),
+            ),
         ],
     );
+    std::fs::create_dir_all(scratch.join("record"))?;
     let expected_s =
         trials as f64 * (setup.steps_per_trial + 1) as f64 * setup.period_s / setup.speed;
     eprintln!(
@@ -209,7 +196,12 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
         (Vec::new(), f64::NAN)
     };
     let restarts = sup.log().matches("restarting").count();
+    let mut record_bytes = 0;
+    for entry in std::fs::read_dir(scratch.join("record"))? {
+        record_bytes += entry?.metadata()?.len();
+    }
     Ok(VehicleRun {
+        record_bytes,
         speed: setup.speed,
         trials,
         wall_s,
@@ -270,6 +262,15 @@ impl VehicleRun {
                 p.name, p.cpu_us_per_step, p.cpu_ms, p.rss_mib, p.hwm_mib
             );
         }
+        // A minute at the vehicle's pace is 60 / period frames; the timed frames are the answered ones.
+        let frames = (self.latency.n as f64).max(1.0);
+        let _ = writeln!(
+            md,
+            "\nFlight record (every frame): {:.1} MB, {:.1} kB per frame timed, {:.1} MB per minute at 5 Hz.",
+            self.record_bytes as f64 / 1e6,
+            self.record_bytes as f64 / frames / 1e3,
+            self.record_bytes as f64 / frames * 300.0 / 1e6,
+        );
         md
     }
 }

@@ -8,7 +8,7 @@ use crate::world::{EpisodeResult, World};
 use config::{Dof, PerDof, derive_seed};
 use learning::Algorithm;
 use learning::agent::Agent;
-use learning::lqr::{discounted_lqr, discretize_zoh};
+use learning::lqr::discounted_lqr;
 use nalgebra::{Matrix1, Matrix2, Vector2};
 use serde::Serialize;
 use std::sync::Mutex;
@@ -175,14 +175,8 @@ pub struct Limit {
 /// decoupled linear dynamics, with the task's Q, R and gamma.
 pub fn lqr_gains(setup: &Setup) -> Result<PerDof<[f64; 2]>, learning::lqr::LqrError> {
     let s = &setup.scenario;
-    let camera = model::Camera::new(&s.camera);
     let gain = |dof: Dof| {
-        let lin = match dof {
-            Dof::Sway => model::linear::sway(&s.model, &camera),
-            Dof::Yaw => model::linear::yaw(&s.model),
-        };
-        let b: nalgebra::SMatrix<f64, 2, 1> = lin.b;
-        let sys = discretize_zoh(&lin.a, &b, s.timing.sample_time_s)?;
+        let sys = behaviour::identified_model(s, dof)?;
         let cost = s.reward.of(dof);
         let q = Matrix2::from_diagonal(&Vector2::new(cost.q[0], cost.q[1]));
         let lqr = discounted_lqr(&sys, &q, &Matrix1::new(cost.r), setup.learning.nac.gamma)?;

@@ -1,11 +1,16 @@
 //! Step one in one process: the service cores composed without IPC, and the experiments of the
 //! paper's simulation section (Fig. 5's learning curves, the learning-rate sweep, the LQR limit,
-//! Figs. 6 and 7's policy maps). The `trainer` binary is its command line.
+//! Figs. 6 and 7's policy maps). Step two in one process too: the twin with the vehicle's cores
+//! (`twin_world`), the evaluation protocol (`evaluation`), the twin's limit (`twin_limit`) and the
+//! step-two benchmark (`step_two_bench`). The `trainer` binary is its command line.
 
+pub mod evaluation;
 pub mod experiment;
 pub mod figures;
 pub mod progress;
 pub mod report;
+pub mod step_two_bench;
+pub mod twin_limit;
 pub mod twin_world;
 pub mod world;
 

@@ -10,9 +10,12 @@ use learning::checkpoint::Checkpoint;
 use std::path::PathBuf;
 use std::time::Instant;
 use trainer::Setup;
+use trainer::evaluation::{evaluate, load_policies, policy_checkpoint, save_policies};
 use trainer::experiment::{self, Curve};
 use trainer::figures::{Alphas, Fig5, PolicyMap, write_json};
 use trainer::progress::Progress;
+use trainer::step_two_bench::{BenchParams, evaluation_json};
+use trainer::twin_limit::SearchParams;
 use trainer::world::{EpisodeResult, World};
 
 #[derive(Parser)]
@@ -139,6 +142,73 @@ enum Command {
         #[arg(long)]
         dir: PathBuf,
     },
+    /// The twin's limit: the best linear policy of each DOF on a twin, by direct policy search on the
+    /// twin in one process (the cross-entropy method from the LQR gains, common random numbers),
+    /// written as a policy directory (DIR/sway.ckpt, DIR/yaw.ckpt: `--initial` loads them) and
+    /// DIR/limit.json (gains, returns, the evaluation set). Use `--eyes images` for the vehicle's
+    /// perception.
+    TwinLimit {
+        /// The twin's reality gap.
+        #[arg(long, default_value = "config/twin.toml")]
+        twin: PathBuf,
+        #[arg(long, default_value = "out/twin-limit")]
+        out: PathBuf,
+        /// The evaluation set's seed (the step-two run's `--seed`): where the limit is reported.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// The search set's seed [default: derived from --seed].
+        #[arg(long)]
+        search_seed: Option<u64>,
+        /// Candidates per generation.
+        #[arg(long, default_value_t = 12)]
+        population: usize,
+        /// Generations at most.
+        #[arg(long, default_value_t = 16)]
+        generations: usize,
+        /// Trials of the search set (distinct start marks).
+        #[arg(long, default_value_t = 10)]
+        search_trials: u32,
+        /// Start from this policy directory's gains instead of the LQR gains.
+        #[arg(long, value_name = "DIR")]
+        start: Option<PathBuf>,
+    },
+    /// Step two over many seeds in one process: step one in simulation, then a learning session on
+    /// the twin (the vehicle mesh's algorithm), measured by the evaluation protocol against the
+    /// simulation policy and the twin's limit. Prints a table; writes JSON.
+    StepTwoBench {
+        /// Seeds: a list (1,2,5) or a range (1..12).
+        #[arg(long, default_value = "1..12")]
+        seeds: String,
+        #[arg(long, default_value = "config/twin.toml")]
+        twin: PathBuf,
+        /// The twin's limit (a `twin-limit` directory); without it, it is searched first.
+        #[arg(long, value_name = "DIR")]
+        limit: Option<PathBuf>,
+        /// Learning trials of step two (a multiple of learning.toml's evaluation.learning_trials).
+        #[arg(long, default_value_t = 20)]
+        trials: u32,
+        #[arg(long, default_value_t = 100)]
+        sim_episodes: usize,
+        /// Independent evaluation sets on which the simulation policy and the final one are
+        /// evaluated again (the evaluation's noise).
+        #[arg(long, default_value_t = 4)]
+        held_out: u32,
+        /// Evaluate the policy after every learning trial (the trials to close half the gap).
+        #[arg(long)]
+        every_trial: bool,
+        #[arg(long, default_value = "out/step-two-bench.json")]
+        json: PathBuf,
+    },
+    /// A step-two session's plan: for T learning trials, prints `SESSION EVALUATION` (the trials of
+    /// the session, learning and evaluation, and the trials of one evaluation) from learning.toml's
+    /// [evaluation]; checks that T is a multiple of its learning_trials and, given --twin, that an
+    /// evaluation is one round of the twin's start marks.
+    Plan {
+        #[arg(long)]
+        trials: u32,
+        #[arg(long)]
+        twin: Option<PathBuf>,
+    },
     /// The LQR-optimal linear policy of each DOF and its mean return: the yardstick for Fig. 5.
     Limit {
         #[arg(long, default_value_t = 4000)]
@@ -257,6 +327,51 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Bench { repeats, episodes } => bench(&setup, repeats.max(1), episodes.max(1)),
+        Command::TwinLimit {
+            twin,
+            out,
+            seed,
+            search_seed,
+            population,
+            generations,
+            search_trials,
+            start,
+        } => {
+            let search = SearchParams {
+                population,
+                generations,
+                trials: search_trials,
+                seed: search_seed.unwrap_or_else(|| config::derive_seed(seed, "twin-limit/search")),
+                tolerance: SearchParams::default().tolerance,
+                eyes: setup.eyes,
+            };
+            twin_limit(&setup, &twin, &out, seed, &search, start.as_deref()).map(|_| ())
+        }
+        Command::Plan { trials, twin } => {
+            let (session, e) = plan(&setup, trials, twin.as_deref())?;
+            cli::outln!("{session} {e}")?;
+            Ok(())
+        }
+        Command::StepTwoBench {
+            seeds,
+            twin,
+            limit,
+            trials,
+            sim_episodes,
+            held_out,
+            every_trial,
+            json,
+        } => {
+            let params = BenchParams {
+                seeds: parse_seeds(&seeds)?,
+                trials,
+                sim_episodes,
+                eyes: setup.eyes,
+                held_out,
+                every_trial,
+            };
+            step_two_bench(&setup, &twin, limit.as_deref(), &params, &json)
+        }
         Command::Limit {
             episodes,
             seed,
@@ -590,4 +705,214 @@ fn default_grid(algorithm: Algorithm) -> Vec<f64> {
         .map(|k| 10f64.powf(k as f64 / 3.0))
         .map(|a| (a * 1e6).round() / 1e6)
         .collect()
+}
+
+/// `1..12` or `1,2,5`.
+fn parse_seeds(text: &str) -> Result<Vec<u64>> {
+    let bad = || anyhow::anyhow!("--seeds: `{text}` is neither a range (1..12) nor a list (1,2,5)");
+    let seeds: Vec<u64> = if let Some((a, b)) = text.split_once("..") {
+        let (a, b): (u64, u64) = (
+            a.trim().parse().map_err(|_| bad())?,
+            b.trim().parse().map_err(|_| bad())?,
+        );
+        (a..=b).collect()
+    } else {
+        text.split(',')
+            .map(|s| s.trim().parse().map_err(|_| bad()))
+            .collect::<Result<_>>()?
+    };
+    if seeds.is_empty() {
+        bail!("--seeds: `{text}` names no seed");
+    }
+    Ok(seeds)
+}
+
+fn load_twin(path: &std::path::Path) -> Result<config::TwinParams> {
+    Ok(config::load(path)?)
+}
+
+/// The evaluation protocol's trials (learning.toml's `evaluation.trials`), which must be some.
+fn evaluation_trials(setup: &Setup) -> Result<u32> {
+    let e = setup.learning.evaluation.trials;
+    if e == 0 {
+        bail!(
+            "learning.toml: evaluation.trials is 0, but the evaluation protocol needs evaluation trials"
+        );
+    }
+    Ok(e)
+}
+
+/// `trainer twin-limit`; returns the limit's policies.
+fn twin_limit(
+    setup: &Setup,
+    twin_path: &std::path::Path,
+    out: &std::path::Path,
+    seed: u64,
+    search: &SearchParams,
+    start: Option<&std::path::Path>,
+) -> Result<Checkpoint> {
+    let twin = load_twin(twin_path)?;
+    let e = evaluation_trials(setup)?;
+    let (scenario, learning) = (&setup.scenario, &setup.learning);
+    let lqr = experiment::lqr_gains(setup)?;
+    let start_gains = match start {
+        Some(dir) => {
+            let c = load_policies(dir)?;
+            PerDof {
+                sway: c.get(Dof::Sway).expect("loaded").policy.gain,
+                yaw: c.get(Dof::Yaw).expect("loaded").policy.gain,
+            }
+        }
+        None => lqr,
+    };
+    cli::outln!(
+        "twin limit on {} ({} perception): cross-entropy search from sway K = {:?}, yaw K = {:?}; {} candidates x {} generations on {} trials",
+        twin_path.display(),
+        search.eyes,
+        start_gains.sway,
+        start_gains.yaw,
+        search.population,
+        search.generations,
+        search.trials
+    )?;
+    let started = Instant::now();
+    let progress = Progress::new("twin limit", search.generations as u64);
+    let found =
+        trainer::twin_limit::search(scenario, learning, &twin, start_gains, search, &progress)?;
+    progress.finish();
+    let limit = policy_checkpoint(scenario, learning, found.gains);
+    let eval = evaluate(scenario, &twin, search.eyes, &limit, seed, e)?;
+    let lqr_eval = evaluate(
+        scenario,
+        &twin,
+        search.eyes,
+        &policy_checkpoint(scenario, learning, lqr),
+        seed,
+        e,
+    )?;
+    save_policies(out, &limit)?;
+    let (m, l) = (eval.mean(), lqr_eval.mean());
+    for dof in Dof::ALL {
+        cli::outln!(
+            "{dof:>4}: limit K = [{:7.3}, {:7.3}]  evaluated return {:9.4}   (LQR K = [{:7.3}, {:7.3}]: {:9.4})",
+            found.gains.get(dof)[0],
+            found.gains.get(dof)[1],
+            m.get(dof),
+            lqr.get(dof)[0],
+            lqr.get(dof)[1],
+            l.get(dof)
+        )?;
+    }
+    cli::outln!(
+        "evaluation set: seed {seed}, {e} trials; cable lost in {} of them; {} policies evaluated in {:.1} s",
+        eval.lost,
+        found.evaluations,
+        started.elapsed().as_secs_f64()
+    )?;
+    let json = out.join("limit.json");
+    write_json(
+        &json,
+        &serde_json::json!({
+            "twin": twin_path,
+            "eyes": search.eyes,
+            "gains": found.gains,
+            "evaluation": evaluation_json(&eval),
+            "lqr": { "gains": lqr, "evaluation": evaluation_json(&lqr_eval) },
+            "search": { "params": search, "found": found },
+        }),
+    )
+    .with_context(|| format!("writing {}", json.display()))?;
+    cli::outln!(
+        "wrote {}/sway.ckpt, {}/yaw.ckpt and {}",
+        out.display(),
+        out.display(),
+        json.display()
+    )?;
+    Ok(limit)
+}
+
+fn step_two_bench(
+    setup: &Setup,
+    twin_path: &std::path::Path,
+    limit_dir: Option<&std::path::Path>,
+    params: &BenchParams,
+    json: &std::path::Path,
+) -> Result<()> {
+    let twin = load_twin(twin_path)?;
+    evaluation_trials(setup)?;
+    plan(setup, params.trials, Some(twin_path))?;
+    let started = Instant::now();
+    let limit = match limit_dir {
+        Some(dir) => load_policies(dir)?,
+        None => {
+            let dir = json.with_extension("limit");
+            let search = SearchParams {
+                eyes: setup.eyes,
+                seed: config::derive_seed(params.seeds[0], "twin-limit/search"),
+                ..SearchParams::default()
+            };
+            twin_limit(setup, twin_path, &dir, params.seeds[0], &search, None)?
+        }
+    };
+    let progress = Progress::new("seeds", params.seeds.len() as u64);
+    let results = trainer::step_two_bench::run(
+        &setup.scenario,
+        &setup.learning,
+        &twin,
+        &limit,
+        params,
+        &progress,
+    )?;
+    progress.finish();
+    cli::outln!(
+        "{}",
+        trainer::step_two_bench::table(&results, params).trim_end()
+    )?;
+    if let Some(dir) = json.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    write_json(
+        json,
+        &serde_json::json!({
+            "twin": twin_path,
+            "params": params,
+            "learning": setup.learning,
+            "limit": { "sway": limit.get(Dof::Sway).map(|s| s.policy.gain), "yaw": limit.get(Dof::Yaw).map(|s| s.policy.gain) },
+            "summary": trainer::step_two_bench::summary(&results),
+            "seeds": results,
+            "wall_s": started.elapsed().as_secs_f64(),
+        }),
+    )
+    .with_context(|| format!("writing {}", json.display()))?;
+    cli::outln!(
+        "wrote {} ({:.0} s)",
+        json.display(),
+        started.elapsed().as_secs_f64()
+    )?;
+    Ok(())
+}
+
+/// A step-two session of `trials` learning trials: its trials, and those of one evaluation.
+fn plan(setup: &Setup, trials: u32, twin: Option<&std::path::Path>) -> Result<(u32, u32)> {
+    let e = &setup.learning.evaluation;
+    if e.trials > 0 && !trials.is_multiple_of(e.learning_trials) {
+        bail!(
+            "{trials} learning trials are not a multiple of learning.toml's evaluation.learning_trials ({}): the session would end without evaluating its last trials",
+            e.learning_trials
+        );
+    }
+    if let Some(path) = twin {
+        let t = load_twin(path)?;
+        let (cycle, period) = (t.trials.cycle, e.trials + e.learning_trials);
+        if e.trials > 0 && (cycle != e.trials || !period.is_multiple_of(cycle)) {
+            tracing::warn!(
+                twin = %path.display(),
+                cycle,
+                evaluation_trials = e.trials,
+                learning_trials = e.learning_trials,
+                "an evaluation is not one round of the twin's start marks (trials.cycle should equal evaluation.trials and divide evaluation.trials + evaluation.learning_trials): evaluations do not start alike, and compare worse"
+            );
+        }
+    }
+    Ok((behaviour::session_trials(e, trials), e.trials))
 }

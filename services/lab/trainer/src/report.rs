@@ -4,35 +4,80 @@
 //! ```text
 //! DIR/fig5/fig5.json                 step one's learning curves over 100 runs (trainer fig5)
 //! DIR/step-one/run.json, *.ckpt      step one through the mesh: per-episode returns, the policies
-//! DIR/eval-sim/run.json              the simulation policy on the twin with its reality gap off
-//!                                    (the simulation from the vehicle's starts), not learning
-//! DIR/eval/run.json, trace.jsonl     the simulation policy on the vehicle (twin), not learning
-//! DIR/step-two/run.json, trace.jsonl, *.ckpt   online learning on the vehicle: per trial
+//! DIR/twin-limit/limit.json, *.ckpt  the twin's limit (trainer twin-limit)
+//! DIR/eval-sim/run.json              evaluations through the vehicle mesh (the evaluation set: the
+//! DIR/eval/run.json, trace.jsonl     twin's first start marks, fixed noise, not learning): the
+//! DIR/eval-limit/run.json            simulation policy with the reality gap off, the simulation
+//!                                    policy on the vehicle (twin), the twin's limit on it,
+//! DIR/eval-after/run.json            the policy step two ended with
+//! DIR/step-two/run.json, trace.jsonl, *.ckpt   step two on the vehicle: learning trials and the
+//!                                    session's own evaluations
 //! ```
 //!
 //! It writes `DIR/report/report.md` with its PNG figures, and `DIR/summary.json`.
 
+use crate::evaluation::gap_closed;
 use crate::figures::{Fig5, PolicyMap, write_json};
-use anyhow::{Context, Result};
-use config::{Dof, Scenario};
+use anyhow::{Context, Result, bail};
+use config::{Dof, PerDof, Scenario};
 use learning::checkpoint::Checkpoint;
-use monitor::{RunRecord, TracePoint};
-use plot::{Figure, LineChart, Panel, Series};
+use monitor::{EvaluationRecord, RunRecord, SafetyCounts, TracePoint};
+use plot::{Figure, LineChart, Panel, RefLine, Series};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-/// `DIR/summary.json`: per-episode returns in simulation, per-trial returns on the vehicle.
+/// `DIR/summary.json`.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Summary {
+    /// Step one: each episode's returns in simulation.
     pub sim: Returns,
-    pub vehicle: Returns,
-    /// The simulation policy on the vehicle before learning there (Figs. 8, 9).
+    /// Step two: each learning trial's returns (the policy learning as it acted).
+    pub learning_trials: Returns,
+    /// The simulation policy on the vehicle before learning there, trial by trial (Figs. 8, 9).
     pub vehicle_before_learning: Returns,
     /// The simulation policy from the vehicle's starts with the reality gap off, when it was run.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sim_from_vehicle_starts: Option<Returns>,
+    /// The twin's limit: its evaluated returns and its gains.
+    pub twin_limit: TwinLimit,
+    /// The evaluations (the protocol: the evaluation set, not learning).
+    pub evaluation: Evaluations,
+    /// `(J_after - J_sim) / (J_limit - J_sim)` per DOF.
+    pub gap_closed: PerDof<f64>,
+    /// Where `|J_limit - J_sim|` is under 5% of `|J_sim|` the ratio is noise.
+    pub gap_is_noise: PerDof<bool>,
+    /// Each behaviour's safety layer over step two.
+    pub safety: PerDof<SafetyCounts>,
+    /// Trials of step two that lost the cable: learning trials, evaluation trials.
+    pub lost: Lost,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TwinLimit {
+    pub yaw: f64,
+    pub sway: f64,
+    pub gains: PerDof<[f64; 2]>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Evaluations {
+    /// Trials per evaluation.
+    pub trials: usize,
+    /// The simulation policy, the policy step two ended with and the twin's limit, each evaluated
+    /// through the vehicle mesh.
+    pub sim_policy: PerDof<f64>,
+    pub after: PerDof<f64>,
+    pub limit: PerDof<f64>,
+    /// Step two's own evaluations: before learning, then after every few learning trials.
+    pub curve: Vec<EvaluationRecord>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Lost {
+    pub learning: usize,
+    pub evaluation: usize,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -139,20 +184,76 @@ fn mean(v: &[f64]) -> f64 {
     stats::mean(v.iter().copied())
 }
 
+/// The evaluated return of an evaluation run: the mean over its trials, per DOF.
+pub fn evaluated(r: &RunRecord) -> PerDof<f64> {
+    PerDof {
+        sway: mean(&r.sway),
+        yaw: mean(&r.yaw),
+    }
+}
+
+/// Step two's learning trials (not the evaluation trials) of a session's record: their numbers in
+/// the session.
+pub fn learning_trials(r: &RunRecord) -> Vec<usize> {
+    (0..r.episodes)
+        .filter(|&t| !r.evaluation.get(t).copied().unwrap_or(false))
+        .collect()
+}
+
+/// Whether the gap between `sim` and `limit` is too small for its ratio to mean anything: under 5%
+/// of `|sim|`.
+pub fn gap_is_noise(sim: f64, limit: f64) -> bool {
+    (limit - sim).abs() < 0.05 * sim.abs()
+}
+
 /// Writes the report of `dir`; returns the path of `report.md`.
 pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
     let out = dir.join("report");
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let sim: RunRecord = read_json(&dir.join("step-one/run.json"))?;
     let eval: RunRecord = read_json(&dir.join("eval/run.json"))?;
-    let vehicle: RunRecord = read_json(&dir.join("step-two/run.json"))?;
+    let eval_limit: RunRecord = read_json(&dir.join("eval-limit/run.json"))?;
+    let eval_after: RunRecord = read_json(&dir.join("eval-after/run.json"))?;
+    let session: RunRecord = read_json(&dir.join("step-two/run.json"))?;
+    let limit_json: serde_json::Value = read_json(&dir.join("twin-limit/limit.json"))?;
+    let limit_gains: PerDof<[f64; 2]> = serde_json::from_value(limit_json["gains"].clone())
+        .context("twin-limit/limit.json: gains")?;
+    if session.evaluations.is_empty() {
+        bail!(
+            "{}: step two evaluated nothing (learning.toml's evaluation.trials is 0?)",
+            dir.join("step-two/run.json").display()
+        );
+    }
+    let learning = learning_trials(&session);
+    let (j_sim, j_after, j_limit) = (
+        evaluated(&eval),
+        evaluated(&eval_after),
+        evaluated(&eval_limit),
+    );
+    let per_dof = |f: &dyn Fn(Dof) -> f64| PerDof {
+        sway: f(Dof::Sway),
+        yaw: f(Dof::Yaw),
+    };
+    let closed = per_dof(&|d| gap_closed(*j_sim.get(d), *j_after.get(d), *j_limit.get(d)));
+    let noise = PerDof {
+        sway: gap_is_noise(j_sim.sway, j_limit.sway),
+        yaw: gap_is_noise(j_sim.yaw, j_limit.yaw),
+    };
+
     let mut md = String::new();
     writeln!(md, "# Two-step NAC learning for cable tracking: report\n")?;
     writeln!(
         md,
-        "Step one: {} episodes in simulation, every service a process. Step two: the simulation policy on the \
-         vehicle (its twin) for {} trials without learning, then {} trials of online learning.\n",
-        sim.episodes, eval.episodes, vehicle.episodes
+        "Step one: {} episodes in simulation, every service a process. Step two on the vehicle (its twin): {} learning \
+         trials, with an evaluation of the policy before the first and after every few ({} evaluations of {} trials: {} \
+         trials in all). An evaluation is the protocol every policy here is measured by: the policy acts without \
+         learning over a fixed set of starts (the twin's first start marks) with fixed noise (the twin's frame noise \
+         of each mark, the exploration noise of each evaluation trial), so evaluations compare.\n",
+        sim.episodes,
+        learning.len(),
+        session.evaluations.len(),
+        eval.episodes,
+        session.episodes
     )?;
 
     // Fig. 5.
@@ -233,9 +334,6 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
         md,
         "## Figs. 8 and 9: the simulation policy on the vehicle\n"
     )?;
-    let sim_tail = sim.episodes.saturating_sub(10)..sim.episodes;
-    let sim_per_step = sim.per_step(sim_tail.clone());
-    let eval_per_step = eval.per_step(0..eval.episodes);
     let per_step = |v: Option<f64>| v.map_or("–".to_owned(), |v| format!("{v:.5}"));
     let eval_sim_json = dir.join("eval-sim/run.json");
     let eval_sim: Option<RunRecord> = if eval_sim_json.exists() {
@@ -245,105 +343,186 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
     };
     writeln!(
         md,
-        "Mean return per attempt: yaw {:.3}, sway {:.4}; cable lost in {} of {} attempts.\n",
-        mean(&eval.yaw),
-        mean(&eval.sway),
+        "Evaluated return (mean per trial over the evaluation set): yaw {:.3}, sway {:.4}; cable lost in {} of {} trials.\n",
+        j_sim.yaw,
+        j_sim.sway,
         eval.lost.iter().filter(|l| **l).count(),
         eval.episodes,
     )?;
-    match &eval_sim {
-        Some(es) => writeln!(
+    if let Some(es) = &eval_sim {
+        let (v, s) = (eval.per_step(0..eval.episodes), es.per_step(0..es.episodes));
+        writeln!(
             md,
-            "The same policy from the same starts with the reality gap off (the twin as the identified model with \
-             the simulator's images): yaw {:.3}, sway {:.4} per attempt. Per step, vehicle against simulation: \
-             yaw {} against {}, sway {} against {}.\n",
+            "The same policy on the same set with the reality gap off (the twin as the identified model with the \
+             simulator's images): yaw {:.3}, sway {:.4}. Per step, vehicle against simulation: yaw {} against {}, \
+             sway {} against {}.\n",
             mean(&es.yaw),
             mean(&es.sway),
-            per_step(eval_per_step.map(|p| p.0)),
-            per_step(es.per_step(0..es.episodes).map(|p| p.0)),
-            per_step(eval_per_step.map(|p| p.1)),
-            per_step(es.per_step(0..es.episodes).map(|p| p.1)),
-        )?,
-        None => writeln!(
-            md,
-            "Per step, on the vehicle against the last {} episodes of step one in simulation (other starts): yaw {} \
-             against {}, sway {} against {}.\n",
-            sim_tail.len(),
-            per_step(eval_per_step.map(|p| p.0)),
-            per_step(sim_per_step.map(|p| p.0)),
-            per_step(eval_per_step.map(|p| p.1)),
-            per_step(sim_per_step.map(|p| p.1)),
-        )?,
+            per_step(v.map(|p| p.0)),
+            per_step(s.map(|p| p.0)),
+            per_step(v.map(|p| p.1)),
+            per_step(s.map(|p| p.1)),
+        )?;
     }
     writeln!(md, "![Figs. 8 and 9](twin-sim-policy.png)\n")?;
 
-    // Figs. 10, 11: improvement over trials.
-    let trial_trace = read_trace(&dir.join("step-two/trace.jsonl"))?;
-    let n = vehicle.episodes.max(1) as u32;
-    let mut picks: Vec<u32> = vec![0, n / 4, n / 2, n - 1];
-    picks.dedup();
-    let eps: Vec<(String, &Vec<TracePoint>)> = picks
-        .iter()
-        .filter_map(|e| trial_trace.get(e).map(|p| (format!("trial {}", e + 1), p)))
-        .collect();
-    traces("learning on the vehicle", ("Fig. 10", "Fig. 11"), &eps)
-        .save_png(&out.join("step-two-traces.png"))?;
-    let starts = same_starts(&trial_trace, &eval_trace, vehicle.episodes);
-    let per_trial = |dof: Dof| {
-        let v = if dof == Dof::Yaw {
-            &vehicle.yaw
-        } else {
-            &vehicle.sway
-        };
-        let x: Vec<f64> = (1..=v.len()).map(|t| t as f64).collect();
-        let mut c = LineChart::new(
-            format!("{dof}: return per trial on the vehicle"),
-            "trial",
-            "total reward",
-        );
-        let before = if dof == Dof::Yaw {
-            &eval.yaw
-        } else {
-            &eval.sway
-        };
-        c.series = vec![Series::new("online learning", x.clone(), v.clone())];
-        // Returns depend most on where a trial starts: beside each trial, the simulation policy's
-        // attempt from the same start; without one, its mean.
-        let matched: Vec<(f64, f64)> = x
-            .iter()
-            .zip(&starts)
-            .filter_map(|(t, m)| m.and_then(|e| before.get(e)).map(|r| (*t, *r)))
-            .collect();
-        if matched.len() == v.len() {
-            c.series.push(Series::new(
-                "simulation policy from the same start, not learning",
-                matched.iter().map(|m| m.0).collect(),
-                matched.iter().map(|m| m.1).collect(),
-            ));
-        } else {
-            c.ref_lines = vec![plot::RefLine::new(
-                "simulation policy, not learning (mean)",
-                mean(before),
-            )];
-        }
-        Panel::Lines(c)
-    };
-    Figure::new(vec![per_trial(Dof::Yaw), per_trial(Dof::Sway)], 2)
-        .save_png(&out.join("step-two-returns.png"))?;
-    let k = (vehicle.episodes / 4).max(1);
+    // Figs. 10, 11: improvement over trials, by the evaluations.
     writeln!(
         md,
         "## Figs. 10 and 11: policy improvement on the vehicle\n"
     )?;
+    let curve_panel = |dof: Dof| {
+        let series = |name: &str, pick: fn(&EvaluationRecord) -> PerDof<Option<f64>>| {
+            let (x, y): (Vec<f64>, Vec<f64>) = session
+                .evaluations
+                .iter()
+                .filter_map(|e| pick(e).get(dof).map(|v| (e.learning_trials as f64, v)))
+                .unzip();
+            Series::new(name, x, y)
+        };
+        let mut c = LineChart::new(
+            format!("{dof}: evaluated return against learning trials"),
+            "learning trials on the vehicle",
+            "evaluated return (mean per trial)",
+        );
+        c.series = vec![
+            series("the policy learned", |e| e.evaluated),
+            series("the policy in force (the best kept)", |e| e.in_force),
+        ];
+        c.ref_lines = vec![
+            RefLine::new("simulation policy", *j_sim.get(dof)),
+            RefLine::new("the twin's limit", *j_limit.get(dof)),
+        ];
+        Panel::Lines(c)
+    };
+    Figure::new(vec![curve_panel(Dof::Yaw), curve_panel(Dof::Sway)], 2)
+        .save_png(&out.join("step-two-evaluations.png"))?;
+    // The state traces of each evaluation's first trial: the same start, the same noise.
+    let trial_trace = read_trace(&dir.join("step-two/trace.jsonl"))?;
+    let firsts: Vec<(String, &Vec<TracePoint>)> = session
+        .evaluations
+        .iter()
+        .filter_map(|e| {
+            let first = e.trial + 1 - eval.episodes as u32;
+            trial_trace.get(&first).map(|p| {
+                let when = if e.learning_trials == 0 {
+                    "before learning".to_owned()
+                } else {
+                    format!("after {} learning trials", e.learning_trials)
+                };
+                (when, p)
+            })
+        })
+        .collect();
+    traces(
+        "an evaluation's first trial (same start, same noise)",
+        ("Fig. 10", "Fig. 11"),
+        &firsts,
+    )
+    .save_png(&out.join("step-two-traces.png"))?;
     writeln!(
         md,
-        "Mean return of the first {k} trials: yaw {:.3}, sway {:.4}; of the last {k}: yaw {:.3}, sway {:.4}.\n\n\
-         ![Figs. 10 and 11](step-two-traces.png)\n\n![returns per trial](step-two-returns.png)\n",
-        mean(&vehicle.yaw[..k]),
-        mean(&vehicle.sway[..k]),
-        mean(&vehicle.yaw[vehicle.yaw.len() - k..]),
-        mean(&vehicle.sway[vehicle.sway.len() - k..]),
+        "The evaluations of step two against the learning trials before them, with the simulation policy and the \
+         twin's limit (each evaluated through the vehicle mesh on the same set): the policy the learning produced, and \
+         the one in force after each evaluation (the best so far is restored when a new one evaluates worse by more \
+         than the tolerance).\n\n![evaluations](step-two-evaluations.png)\n\n\
+         Each evaluation's first trial, from the same start with the same noise:\n\n![Figs. 10 and 11](step-two-traces.png)\n"
     )?;
+    writeln!(
+        md,
+        "| DOF | simulation policy J_sim | after step two J_after | the twin's limit J_limit | gap closed |\n|---|---:|---:|---:|---:|"
+    )?;
+    for dof in [Dof::Yaw, Dof::Sway] {
+        let note = if *noise.get(dof) {
+            " (the gap is under 5% of J_sim: the ratio is noise)"
+        } else {
+            ""
+        };
+        writeln!(
+            md,
+            "| {dof} | {:.4} | {:.4} | {:.4} | {:.0}%{note} |",
+            j_sim.get(dof),
+            j_after.get(dof),
+            j_limit.get(dof),
+            100.0 * closed.get(dof)
+        )?;
+    }
+    writeln!(
+        md,
+        "\nThe twin's limit: sway K = [{:.3}, {:.3}], yaw K = [{:.3}, {:.3}] (direct policy search on the twin, \
+         `twin-limit/limit.json`).\n",
+        limit_gains.sway[0], limit_gains.sway[1], limit_gains.yaw[0], limit_gains.yaw[1]
+    )?;
+    writeln!(md, "Step two's evaluations:\n")?;
+    writeln!(
+        md,
+        "| after learning trials | yaw evaluated | in force | sway evaluated | in force | best restored |\n|---:|---:|---:|---:|---:|:---:|"
+    )?;
+    let opt =
+        |v: Option<f64>, digits: usize| v.map_or("–".to_owned(), |v| format!("{v:.digits$}"));
+    for e in &session.evaluations {
+        let restored: Vec<&str> = Dof::ALL
+            .into_iter()
+            .filter(|d| *e.rolled_back.get(*d))
+            .map(Dof::name)
+            .collect();
+        writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} |",
+            e.learning_trials,
+            opt(e.evaluated.yaw, 3),
+            opt(e.in_force.yaw, 3),
+            opt(e.evaluated.sway, 4),
+            opt(e.in_force.sway, 4),
+            restored.join(", ")
+        )?;
+    }
+    writeln!(
+        md,
+        "\nThe safety layer over step two: actor updates shortened by the trust region: sway {}, yaw {}; refused by the \
+         stability guard: sway {}, yaw {}; best policy restored: sway {}, yaw {}.\n",
+        session.safety.sway.bounded,
+        session.safety.yaw.bounded,
+        session.safety.sway.refused,
+        session.safety.yaw.refused,
+        session.safety.sway.rollbacks,
+        session.safety.yaw.rollbacks
+    )?;
+
+    // The learning trials, each beside the simulation policy from the same start.
+    let learned = |v: &[f64]| -> Vec<f64> { learning.iter().map(|&t| v[t]).collect() };
+    let (learn_yaw, learn_sway) = (learned(&session.yaw), learned(&session.sway));
+    let starts = same_starts(&trial_trace, &eval_trace, session.episodes);
+    let per_trial = |dof: Dof| {
+        let (v, before) = match dof {
+            Dof::Yaw => (&learn_yaw, &eval.yaw),
+            Dof::Sway => (&learn_sway, &eval.sway),
+        };
+        let x: Vec<f64> = (1..=v.len()).map(|t| t as f64).collect();
+        let mut c = LineChart::new(
+            format!("{dof}: return per learning trial on the vehicle"),
+            "learning trial",
+            "total reward",
+        );
+        c.series = vec![Series::new("online learning", x.clone(), v.clone())];
+        // Returns depend most on where a trial starts: beside each trial, the simulation policy's
+        // evaluation trial from the same start.
+        let matched: Vec<(f64, f64)> = x
+            .iter()
+            .zip(&learning)
+            .filter_map(|(n, &t)| starts[t].and_then(|e| before.get(e)).map(|r| (*n, *r)))
+            .collect();
+        c.series.push(Series::new(
+            "simulation policy from the same start, not learning",
+            matched.iter().map(|m| m.0).collect(),
+            matched.iter().map(|m| m.1).collect(),
+        ));
+        Panel::Lines(c)
+    };
+    Figure::new(vec![per_trial(Dof::Yaw), per_trial(Dof::Sway)], 2)
+        .save_png(&out.join("step-two-returns.png"))?;
+    writeln!(md, "![returns per learning trial](step-two-returns.png)\n")?;
+
     writeln!(
         md,
         "## Figs. 12 and 13: the policies after learning on the vehicle\n"
@@ -356,14 +535,15 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
         &mut md,
     )?;
 
-    writeln!(md, "## Returns per trial on the vehicle\n")?;
+    writeln!(md, "## Learning trials on the vehicle\n")?;
     writeln!(
         md,
-        "| trial | steps | cable lost | yaw return | sway return | simulation policy from the same start: yaw | sway |\n\
-         |---:|---:|:---:|---:|---:|---:|---:|"
+        "Each learning trial beside the simulation policy's evaluation trial from the same start.\n\n\
+         | learning trial | trial of the session | steps | cable lost | yaw return | sway return | simulation policy from the same start: yaw | sway |\n\
+         |---:|---:|---:|:---:|---:|---:|---:|---:|"
     )?;
-    for t in 0..vehicle.episodes {
-        let steps = trial_trace.get(&(t as u32)).map_or(0, |p| p.len());
+    for (n, &t) in learning.iter().enumerate() {
+        let steps = session.episode_steps.get(t).copied().unwrap_or(0);
         let (same_yaw, same_sway) = match starts.get(t).copied().flatten() {
             Some(e) => (
                 format!("{:.3}", eval.yaw[e]),
@@ -373,21 +553,51 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
         };
         writeln!(
             md,
-            "| {} | {} | {} | {:.3} | {:.4} | {same_yaw} | {same_sway} |",
+            "| {} | {} | {} | {} | {:.3} | {:.4} | {same_yaw} | {same_sway} |",
+            n + 1,
             t + 1,
             steps,
-            if vehicle.lost[t] { "yes" } else { "" },
-            vehicle.yaw[t],
-            vehicle.sway[t]
+            if session.lost[t] { "yes" } else { "" },
+            session.yaw[t],
+            session.sway[t]
         )?;
     }
     let path = out.join("report.md");
     std::fs::write(&path, md).with_context(|| format!("writing {}", path.display()))?;
+    let lost = |pick: bool| {
+        (0..session.episodes)
+            .filter(|&t| {
+                session.lost[t] && session.evaluation.get(t).copied().unwrap_or(false) == pick
+            })
+            .count()
+    };
     let summary = Summary {
         sim: (&sim).into(),
-        vehicle: (&vehicle).into(),
+        learning_trials: Returns {
+            yaw: learn_yaw.clone(),
+            sway: learn_sway.clone(),
+        },
         vehicle_before_learning: (&eval).into(),
         sim_from_vehicle_starts: eval_sim.as_ref().map(Into::into),
+        twin_limit: TwinLimit {
+            yaw: j_limit.yaw,
+            sway: j_limit.sway,
+            gains: limit_gains,
+        },
+        evaluation: Evaluations {
+            trials: eval.episodes,
+            sim_policy: j_sim,
+            after: j_after,
+            limit: j_limit,
+            curve: session.evaluations.clone(),
+        },
+        gap_closed: closed,
+        gap_is_noise: noise,
+        safety: session.safety,
+        lost: Lost {
+            learning: lost(false),
+            evaluation: lost(true),
+        },
     };
     write_json(&dir.join("summary.json"), &summary).with_context(|| "writing summary.json")?;
     Ok(path)
@@ -413,6 +623,13 @@ mod tests {
                 (e as u32, vec![p(0), p(1)])
             })
             .collect()
+    }
+
+    #[test]
+    fn a_gap_under_five_percent_is_noise() {
+        assert!(gap_is_noise(-10.0, -9.6));
+        assert!(!gap_is_noise(-10.0, -9.4));
+        assert!(!gap_is_noise(-1.0, -0.5));
     }
 
     #[test]

@@ -3,8 +3,9 @@
 //! allocator), called in the mesh's order with no IPC, like `trainer::World` for step one. A frame
 //! the twin drops never reaches perception: that step gets no command, and the thrusters hold.
 
-use behaviour::{Behaviour, resume_seed};
+use behaviour::{Behaviour, StepTwo, resume_seed};
 use config::{Dof, Eyes, PerDof, Scenario, TwinParams, derive_seed};
+use learning::lqr::LqrError;
 use learning::{Agent, Checkpoint, CheckpointError};
 use messages::{CableObservationMsg, CameraFrameHeader, LearningStats, Stamp, StepStatus};
 use perception::Observer;
@@ -32,9 +33,45 @@ pub struct TrialResult {
     /// Each policy's gain after the trial.
     pub gains: PerDof<[f64; 2]>,
     pub actor_updates: PerDof<u64>,
+    /// An evaluation trial of step two (the policies acted without learning).
+    pub evaluation: bool,
+    /// The mean returns of the evaluation this trial closed (NaN when it closed none), and whether
+    /// each behaviour then restored its best policy.
+    pub evaluated: PerDof<f64>,
+    pub rolled_back: PerDof<bool>,
+    /// The best evaluated return so far (NaN before the first evaluation).
+    pub best: PerDof<f64>,
+    /// Each behaviour's safety counts after the trial: actor updates shortened, refused; rollbacks.
+    pub bounded: PerDof<u64>,
+    pub refused: PerDof<u64>,
+    pub rollbacks: PerDof<u64>,
+}
+
+/// What the behaviours do on the vehicle: learn under step two's protocol (`--step-two`), or act and
+/// evaluate (`--step-two --act-only`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    Learn,
+    Act,
 }
 
 impl TrialResult {
+    /// The evaluated return of the policy in force after the evaluation this trial closed: the
+    /// evaluated one, or the best one when it was restored.
+    pub fn in_force(&self) -> PerDof<f64> {
+        let pick = |dof: Dof| {
+            if *self.rolled_back.get(dof) {
+                *self.best.get(dof)
+            } else {
+                *self.evaluated.get(dof)
+            }
+        };
+        PerDof {
+            sway: pick(Dof::Sway),
+            yaw: pick(Dof::Yaw),
+        }
+    }
+
     /// A DOF's mean reward per transition.
     pub fn per_step(&self, dof: Dof) -> f64 {
         *self.returns.get(dof) / (*self.transitions.get(dof)).max(1) as f64
@@ -70,11 +107,27 @@ pub struct TwinWorld {
 }
 
 impl TwinWorld {
-    /// A world around existing agents (their learning switch as they come).
+    /// A world around existing agents (their learning switch as they come), without step two's
+    /// protocol.
     pub fn new(
         scenario: &Scenario,
         twin: &TwinParams,
         agents: PerDof<Agent>,
+        eyes: Eyes,
+        seed: u64,
+    ) -> Result<Self, VisionError> {
+        let behaviours = PerDof {
+            sway: Behaviour::new(agents.sway),
+            yaw: Behaviour::new(agents.yaw),
+        };
+        Self::with_behaviours(scenario, twin, behaviours, eyes, seed)
+    }
+
+    /// A world around existing behaviours.
+    pub fn with_behaviours(
+        scenario: &Scenario,
+        twin: &TwinParams,
+        behaviours: PerDof<Behaviour>,
         eyes: Eyes,
         seed: u64,
     ) -> Result<Self, VisionError> {
@@ -85,10 +138,7 @@ impl TwinWorld {
         Ok(TwinWorld {
             twin,
             observer,
-            behaviours: PerDof {
-                sway: Behaviour::new(agents.sway),
-                yaw: Behaviour::new(agents.yaw),
-            },
+            behaviours,
             surge: SurgeController::new(&scenario.surge, &scenario.model.surge),
             allocator: Allocator::new(&scenario.thrusters),
             image: if images {
@@ -100,29 +150,39 @@ impl TwinWorld {
         })
     }
 
-    /// The world a vehicle-endpoint behaviour starts from with `--initial CHECKPOINT`: each DOF's
-    /// agent resumed from the step-one checkpoint, its exploration seeded as the service seeds it.
+    /// The world of the vehicle mesh's behaviours started with `--initial CHECKPOINT --step-two`
+    /// (and `--act-only` for [`Mode::Act`]) under the supervisor's `--seed seed`: each DOF's agent
+    /// resumed from the checkpoint, its exploration seeded as the service seeds it, running step
+    /// two's protocol with the checkpoint's learning parameters.
     pub fn from_checkpoint(
         scenario: &Scenario,
         twin: &TwinParams,
         checkpoint: &Checkpoint,
         eyes: Eyes,
         seed: u64,
+        mode: Mode,
     ) -> Result<Self, FromCheckpointError> {
-        let agent = |dof: Dof| -> Result<Agent, FromCheckpointError> {
+        let behaviour = |dof: Dof| -> Result<Behaviour, FromCheckpointError> {
             let state = checkpoint
                 .get(dof)
                 .cloned()
                 .ok_or(FromCheckpointError::Missing(dof))?;
-            let seed = resume_seed(derive_seed(seed, dof.name()), &state);
-            Agent::from_state(state, seed)
-                .map_err(|e| FromCheckpointError::Invalid(dof, e.to_string()))
+            let stream = derive_seed(seed, dof.name());
+            let agent_seed = resume_seed(stream, &state);
+            let mut agent = Agent::from_state(state, agent_seed)
+                .map_err(|e| FromCheckpointError::Invalid(dof, e.to_string()))?;
+            let learning = mode == Mode::Learn;
+            agent.set_learning(learning);
+            let step_two = StepTwo::new(agent.params(), learning, stream, agent_seed);
+            Ok(Behaviour::for_step_two(agent, step_two, scenario)?)
         };
-        let agents = PerDof {
-            sway: agent(Dof::Sway)?,
-            yaw: agent(Dof::Yaw)?,
+        let behaviours = PerDof {
+            sway: behaviour(Dof::Sway)?,
+            yaw: behaviour(Dof::Yaw)?,
         };
-        Ok(TwinWorld::new(scenario, twin, agents, eyes, seed)?)
+        Ok(TwinWorld::with_behaviours(
+            scenario, twin, behaviours, eyes, seed,
+        )?)
     }
 
     pub fn twin(&self) -> &Twin {
@@ -133,14 +193,8 @@ impl TwinWorld {
         self.behaviours.get(dof).agent()
     }
 
-    /// Turns learning on or off for both behaviours.
-    pub fn set_learning(&mut self, on: bool) {
-        for dof in Dof::ALL {
-            let b = self.behaviours.get_mut(dof);
-            let mut agent = b.clone().into_agent();
-            agent.set_learning(on);
-            *b = Behaviour::new(agent);
-        }
+    pub fn behaviour(&self, dof: Dof) -> &Behaviour {
+        self.behaviours.get(dof)
     }
 
     /// The agents, e.g. to checkpoint them.
@@ -191,29 +245,60 @@ impl TwinWorld {
                 let (next, end) = self.twin.advance(None);
                 debug_assert_eq!(next.trial, trial + 1);
                 let end = end.expect("a terminal frame closes its trial");
-                let get = |s: Option<LearningStats>, b: &Behaviour| {
-                    s.map_or(
-                        (
-                            0.0,
-                            0,
-                            b.agent().gain(),
-                            b.agent().learner().actor_updates(),
-                        ),
-                        |s| (s.episode_return, s.steps, s.gain, s.actor_updates),
-                    )
+                // A behaviour that took no step in the trial reports nothing: its state as it is.
+                let get = |dof: Dof| {
+                    let b = self.behaviours.get(dof);
+                    (*stats.get(dof)).unwrap_or_else(|| {
+                        let a = b.agent();
+                        let safety = a.safety();
+                        LearningStats {
+                            gain: a.gain(),
+                            actor_updates: a.learner().actor_updates(),
+                            evaluation: b.trial_kind().is_evaluation() as u8,
+                            bounded: safety.bounded,
+                            refused: safety.refused,
+                            rollbacks: safety.rollbacks,
+                            evaluated: f64::NAN,
+                            best_evaluated: safety.best.map_or(f64::NAN, |b| b.evaluated),
+                            ..Default::default()
+                        }
+                    })
                 };
-                let (sr, ss, sg, su) = get(stats.sway, &self.behaviours.sway);
-                let (yr, ys, yg, yu) = get(stats.yaw, &self.behaviours.yaw);
+                let (sway, yaw) = (get(Dof::Sway), get(Dof::Yaw));
+                let both = |f: fn(&LearningStats) -> f64| PerDof {
+                    sway: f(&sway),
+                    yaw: f(&yaw),
+                };
+                let count = |f: fn(&LearningStats) -> u64| PerDof {
+                    sway: f(&sway),
+                    yaw: f(&yaw),
+                };
                 return TrialResult {
                     trial,
                     steps: end.steps,
                     lost: end.status == StepStatus::Lost,
                     dropped: end.dropped,
                     missed,
-                    returns: PerDof { sway: sr, yaw: yr },
-                    transitions: PerDof { sway: ss, yaw: ys },
-                    gains: PerDof { sway: sg, yaw: yg },
-                    actor_updates: PerDof { sway: su, yaw: yu },
+                    returns: both(|s| s.episode_return),
+                    transitions: PerDof {
+                        sway: sway.steps,
+                        yaw: yaw.steps,
+                    },
+                    gains: PerDof {
+                        sway: sway.gain,
+                        yaw: yaw.gain,
+                    },
+                    actor_updates: count(|s| s.actor_updates),
+                    evaluation: sway.evaluation != 0 && yaw.evaluation != 0,
+                    evaluated: both(|s| s.evaluated),
+                    best: both(|s| s.best_evaluated),
+                    rolled_back: PerDof {
+                        sway: sway.rolled_back != 0,
+                        yaw: yaw.rolled_back != 0,
+                    },
+                    bounded: count(|s| s.bounded),
+                    refused: count(|s| s.refused),
+                    rollbacks: count(|s| s.rollbacks),
                 };
             }
             let allocation = self.allocator.allocate(model::Forces {
@@ -239,7 +324,10 @@ impl TwinWorld {
                 .render(&mut self.image)
                 .expect("the image buffer has the camera's size");
         }
-        self.observer.observe(&header, &self.image).msg
+        self.observer
+            .observe(&header, &self.image)
+            .expect("the twin renders frames of the camera's size")
+            .msg
     }
 
     fn push_trace(&mut self, shot: &Shot, obs: Option<&model::CableObservation>, c: [f64; 3]) {
@@ -266,6 +354,8 @@ pub enum FromCheckpointError {
     Missing(Dof),
     #[error("the checkpoint's {0} entry cannot be resumed: {1}")]
     Invalid(Dof, String),
+    #[error("the stability guard cannot be built from the identified model")]
+    Guard(#[from] LqrError),
     #[error(transparent)]
     Vision(#[from] VisionError),
     #[error(transparent)]

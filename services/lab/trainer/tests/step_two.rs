@@ -1,153 +1,353 @@
 //! Step two in one process (the twin and the vehicle endpoint's cores, no IPC), as the paper's
-//! section IV-B: a policy learned in simulation (the trainer, 100 episodes) keeps the cable in view
-//! on the twin but does worse there than in simulation; learning online from it over 20 trials of
-//! 90 s improves it. Images and perception are in the loop, with the twin's harsher image effects.
+//! section IV-B, measured by the evaluation protocol: over several seeds, learning on the harsh twin
+//! closes most of the gap between the simulation policy and the twin's limit and leaves no seed worse
+//! than it found it; the limit search finds the LQR gain where the gap is off.
 //!
-//! "In simulation" is the twin with every effect off (`TwinParams::ideal`, the simulator's images):
-//! the identified model and the centred camera, in trials of the same length from the same starts.
-//! The trials cycle through 5 start poses (`config/twin.toml`), so the first five trials and the
-//! last five start alike and their returns compare.
-//!
-//! `cargo test --release -p trainer --test step_two -- --nocapture` prints the numbers.
+//! Ideal perception (the camera's exact line and rates) keeps these tests to seconds; the README's
+//! benchmark (`trainer --eyes images step-two-bench`) runs the same with images and perception in
+//! the loop, as on the vehicle.
 
-use config::Eyes;
-use config::{Dof, LearningParams, Scenario, TwinParams};
-use learning::{Algorithm, Checkpoint};
-use stats::mean;
-use trainer::Perceiver;
-use trainer::twin_world::{TrialResult, TwinWorld};
-use trainer::world::World;
+use config::{Dof, Eyes, PerDof, TwinParams};
+use trainer::evaluation::{evaluate, policy_checkpoint};
+use trainer::step_two_bench::{BenchParams, run, summary};
+use trainer::twin_limit::{SearchParams, search};
+use trainer::twin_world::{Mode, TwinWorld};
+use trainer::{Setup, experiment};
 
-/// The experiment's seed (step one's learning, the twin's starts, drops and image noise).
-const SEED: u64 = 10;
-const TRIALS: usize = 20;
-
-/// Step one: the trainer's 100 episodes in simulation, saved as the checkpoint step two loads.
-fn step_one(scenario: &Scenario, learning: &LearningParams) -> Checkpoint {
-    let eyes = Perceiver::Ideal(scenario.observation.clone());
-    let mut world = World::new(scenario, learning, Algorithm::Nac, eyes, SEED);
-    for _ in 0..100 {
-        world.run_episode();
-    }
-    let agents = world.into_agents();
-    let mut checkpoint = Checkpoint::single(agents.sway.checkpoint());
-    checkpoint.insert(agents.yaw.checkpoint());
-    // Through the file, as the transfer does.
-    let tmp = tempfile::tempdir().unwrap();
-    let path = tmp.path().join("step-one.ckpt");
-    checkpoint.save(&path).unwrap();
-    Checkpoint::load(&path).unwrap()
+fn setup() -> Setup {
+    Setup::load(&testkit::config_dir(), config::Preset::Default).unwrap()
 }
 
-fn trials(world: &mut TwinWorld, n: usize) -> Vec<TrialResult> {
-    (0..n).map(|_| world.run_trial()).collect()
+fn twin(file: &str) -> TwinParams {
+    config::load(&testkit::config_dir().join(file)).unwrap()
 }
 
-fn per_step(run: &[TrialResult], dof: Dof) -> f64 {
-    mean(run.iter().map(|r| r.per_step(dof)))
-}
-
-fn returns(run: &[TrialResult], dof: Dof) -> f64 {
-    mean(run.iter().map(|r| *r.returns.get(dof)))
-}
-
+/// The search, from a quarter of the LQR gains, on the twin with its reality gap off (the identified model),
+/// comes back to the LQR gain: the same evaluated return, and gains within the flat directions of
+/// the undiscounted trial return.
 #[test]
-fn the_simulation_policy_tracks_worse_on_the_twin_and_online_learning_improves_it() {
-    let dir = testkit::config_dir();
-    let scenario: Scenario = config::load(&dir.join("scenario.toml")).unwrap();
-    let learning: LearningParams = config::load(&dir.join("learning.toml")).unwrap();
-    let twin: TwinParams = config::load(&dir.join("twin.toml")).unwrap();
-    assert_eq!(twin, TwinParams::default(), "the shipped reality gap");
-    let checkpoint = step_one(&scenario, &learning);
-    let mut sim = TwinParams::ideal();
-    sim.trials = twin.trials.clone();
-    sim.render = scenario.render.clone();
-    let world = |params: &TwinParams| {
-        TwinWorld::from_checkpoint(&scenario, params, &checkpoint, Eyes::Images, SEED).unwrap()
+fn the_limit_search_finds_the_lqr_gain_with_the_gap_off() {
+    let s = setup();
+    let ideal = twin("twin-ideal.toml");
+    let lqr = experiment::lqr_gains(&s).unwrap();
+    let start = PerDof {
+        sway: lqr.sway.map(|k| 0.25 * k),
+        yaw: lqr.yaw.map(|k| 0.25 * k),
     };
-
-    // The simulation policy, acting only: in simulation, and on the twin from the same starts.
-    let mut in_sim = world(&sim);
-    in_sim.set_learning(false);
-    let in_sim = trials(&mut in_sim, 5);
-    let mut on_twin = world(&twin);
-    on_twin.set_learning(false);
-    let on_twin = trials(&mut on_twin, 5);
-    // Step two: learning goes on, on the twin.
-    let mut online = world(&twin);
-    let learned = trials(&mut online, TRIALS);
-    let (first, last) = (&learned[..5], &learned[TRIALS - 5..]);
-
-    eprintln!(
-        "trial   sim yaw  sim sway | twin yaw twin sway | learning yaw  sway   lost  K sway          K yaw"
-    );
-    for (k, r) in learned.iter().enumerate() {
-        let (s, t) = (in_sim.get(k), on_twin.get(k));
-        eprintln!(
-            "{k:5} {:>9} {:>9} | {:>8} {:>9} | {:12.3} {:6.3} {:5}  {:6.2?} {:6.2?}",
-            s.map_or(String::new(), |s| format!("{:.3}", s.returns.yaw)),
-            s.map_or(String::new(), |s| format!("{:.3}", s.returns.sway)),
-            t.map_or(String::new(), |t| format!("{:.3}", t.returns.yaw)),
-            t.map_or(String::new(), |t| format!("{:.3}", t.returns.sway)),
-            r.returns.yaw,
-            r.returns.sway,
-            r.lost,
-            r.gains.sway,
-            r.gains.yaw
-        );
+    let params = SearchParams {
+        eyes: Eyes::Ideal,
+        seed: 101,
+        ..SearchParams::default()
+    };
+    let found = search(
+        &s.scenario,
+        &s.learning,
+        &ideal,
+        start,
+        &params,
+        &trainer::progress::Progress::hidden(),
+    )
+    .unwrap();
+    let e = s.learning.evaluation.trials;
+    for seed in [1, 2, 3] {
+        let j = |gains| {
+            evaluate(
+                &s.scenario,
+                &ideal,
+                Eyes::Ideal,
+                &policy_checkpoint(&s.scenario, &s.learning, gains),
+                seed,
+                e,
+            )
+            .unwrap()
+            .mean()
+        };
+        let (found_j, lqr_j, start_j) = (j(found.gains), j(lqr), j(start));
+        for dof in Dof::ALL {
+            let (f, l, st) = (*found_j.get(dof), *lqr_j.get(dof), *start_j.get(dof));
+            eprintln!("seed {seed} {dof}: found {f:.4}, LQR {l:.4}, start {st:.4}");
+            // Measured on seeds 1 to 3: the found return within 0.6% of the LQR's (either side);
+            // 2% allows for the search set's noise.
+            assert!(
+                (f - l).abs() < 0.02 * l.abs(),
+                "{dof}: found {f} vs LQR {l}"
+            );
+            assert!(st < l - 0.02 * l.abs(), "{dof}: the start is clearly worse");
+        }
     }
-    for dof in Dof::ALL {
-        eprintln!(
-            "{dof}: per step sim {:.5} twin {:.5}; learning on the twin: first 5 trials {:.3}, last 5 {:.3}",
-            per_step(&in_sim, dof),
-            per_step(&on_twin, dof),
-            returns(first, dof),
-            returns(last, dof)
-        );
+    // The gains: yaw measured within 8% of the LQR's position gain and 0.8 of its rate gain; sway
+    // 15 to 25% above (the undiscounted 90 s return prefers a little more gain than the discounted
+    // LQR cost, and is flat there). The bounds add the search's spread.
+    let (f, l) = (found.gains, lqr);
+    eprintln!("found {f:?}, LQR {l:?}");
+    assert!((f.yaw[0] / l.yaw[0] - 1.0).abs() < 0.15, "{f:?} vs {l:?}");
+    assert!((f.yaw[1] - l.yaw[1]).abs() < 1.5, "{f:?} vs {l:?}");
+    for i in 0..2 {
+        assert!((f.sway[i] / l.sway[i] - 1.0).abs() < 0.4, "{f:?} vs {l:?}");
     }
+}
 
-    // It tracks on the twin: no trial loses the cable, acting or learning.
-    assert!(
-        on_twin
-            .iter()
-            .chain(&learned)
-            .all(|r| !r.lost && r.steps == 450)
-    );
-    for dof in Dof::ALL {
-        // It does worse than in simulation: at least 20% more cost per step.
+/// Over several seeds on the harsh twin (ideal perception): step two closes most of the gap to the
+/// twin's limit, no seed ends worse than its simulation policy on its evaluation set, and no trial
+/// loses the cable.
+#[test]
+fn step_two_closes_the_gap_on_the_harsh_twin_and_never_leaves_a_seed_worse() {
+    let s = setup();
+    let harsh = twin("twin-harsh.toml");
+    let limit_gains = search(
+        &s.scenario,
+        &s.learning,
+        &harsh,
+        experiment::lqr_gains(&s).unwrap(),
+        &SearchParams {
+            eyes: Eyes::Ideal,
+            ..SearchParams::default()
+        },
+        &trainer::progress::Progress::hidden(),
+    )
+    .unwrap()
+    .gains;
+    let limit = policy_checkpoint(&s.scenario, &s.learning, limit_gains);
+    let params = BenchParams {
+        seeds: (1..=8).collect(),
+        trials: 20,
+        sim_episodes: 100,
+        eyes: Eyes::Ideal,
+        held_out: 0,
+        every_trial: false,
+    };
+    let results = run(
+        &s.scenario,
+        &s.learning,
+        &harsh,
+        &limit,
+        &params,
+        &trainer::progress::Progress::hidden(),
+    )
+    .unwrap();
+    print!("{}", trainer::step_two_bench::table(&results, &params));
+    let verdict = summary(&results);
+    for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
+        // The README's benchmark (12 seeds, ideal perception) has a median gap closed of 65% for
+        // yaw and 100% for sway; these 8 seeds measured 68% and 100%. The bound 50% leaves yaw 15
+        // points for the spread of the median between seed sets (its seeds range 21% to 86%).
         assert!(
-            per_step(&on_twin, dof) < 1.2 * per_step(&in_sim, dof),
-            "{dof}: twin {} vs sim {}",
-            per_step(&on_twin, dof),
-            per_step(&in_sim, dof)
+            d.median_gap_closed >= 0.5,
+            "{dof}: median gap closed {}",
+            d.median_gap_closed
         );
-        // Learning on the twin improves it: the last five trials beat the first five, by 20%.
-        assert!(
-            returns(last, dof) > 0.8 * returns(first, dof),
-            "{dof}: last five {} vs first five {}",
-            returns(last, dof),
-            returns(first, dof)
-        );
+        // Keeping the best: no seed ends below its simulation policy on its own evaluation set
+        // (the evaluations are repeatable, so this holds exactly, not within noise).
+        for r in &results {
+            assert!(
+                *r.gap_closed.get(dof) >= 0.0,
+                "seed {}: {dof} gap closed {}",
+                r.seed,
+                r.gap_closed.get(dof)
+            );
+        }
     }
+    assert_eq!(verdict.lost, 0, "no trial loses the cable");
+}
+
+/// An evaluation of step two's session is the protocol: the session's first evaluation (before any
+/// learning) gives the returns of the simulation policy evaluated on its own, bit for bit, and so
+/// does an evaluation after learning for the policy it evaluated.
+#[test]
+fn a_sessions_evaluations_are_the_protocols() {
+    let s = setup();
+    let mut harsh = twin("twin-harsh.toml");
+    harsh.trials.duration_s = 30.0;
+    let sim = trainer::step_two_bench::step_one(&s.scenario, &s.learning, 60, 4);
+    let e = s.learning.evaluation.trials;
+    let seed = 4;
+    let mut world =
+        TwinWorld::from_checkpoint(&s.scenario, &harsh, &sim, Eyes::Ideal, seed, Mode::Learn)
+            .unwrap();
+    let session: Vec<_> = (0..behaviour::session_trials(&s.learning.evaluation, 10))
+        .map(|_| world.run_trial())
+        .collect();
+    let evaluations: Vec<_> = session
+        .iter()
+        .filter(|t| t.evaluated.yaw.is_finite())
+        .collect();
+    assert_eq!(evaluations.len(), 3);
+    let alone = evaluate(&s.scenario, &harsh, Eyes::Ideal, &sim, seed, e)
+        .unwrap()
+        .mean();
+    assert_eq!(evaluations[0].evaluated.yaw.to_bits(), alone.yaw.to_bits());
+    assert_eq!(
+        evaluations[0].evaluated.sway.to_bits(),
+        alone.sway.to_bits()
+    );
+    // The policy the second evaluation judged: the gains after the learning trials before it.
+    let k = s.learning.evaluation.learning_trials;
+    let judged = session[(e + k - 1) as usize].gains;
+    assert!(!session[(e + k - 1) as usize].evaluation && session[(e + k) as usize].evaluation);
+    let again = evaluate(
+        &s.scenario,
+        &harsh,
+        Eyes::Ideal,
+        &policy_checkpoint(&s.scenario, &s.learning, judged),
+        seed,
+        e,
+    )
+    .unwrap()
+    .mean();
+    assert_eq!(evaluations[1].evaluated.yaw.to_bits(), again.yaw.to_bits());
+    assert_eq!(
+        evaluations[1].evaluated.sway.to_bits(),
+        again.sway.to_bits()
+    );
 }
 
 /// The in-process step two is reproducible: the same seed, the same trials.
 #[test]
 fn the_same_seed_gives_the_same_trials() {
-    let scenario = Scenario::default();
-    let learning = LearningParams::default();
-    let agents = || {
-        let eyes = Perceiver::Ideal(scenario.observation.clone());
-        let mut world = World::new(&scenario, &learning, Algorithm::Nac, eyes, 3);
-        for _ in 0..10 {
-            world.run_episode();
-        }
-        world.into_agents()
-    };
+    let s = setup();
+    let sim = trainer::step_two_bench::step_one(&s.scenario, &s.learning, 10, 3);
     let run = || {
-        let mut w =
-            TwinWorld::new(&scenario, &TwinParams::default(), agents(), Eyes::Images, 3).unwrap();
+        let mut w = TwinWorld::from_checkpoint(
+            &s.scenario,
+            &TwinParams::default(),
+            &sim,
+            Eyes::Images,
+            3,
+            Mode::Learn,
+        )
+        .unwrap();
         (0..2).map(|_| w.run_trial()).collect::<Vec<_>>()
     };
-    assert_eq!(run(), run());
+    let (a, b) = (run(), run());
+    assert_eq!(format!("{a:?}"), format!("{b:?}"));
+}
+
+/// Learning parameters for the safety tests: a learning rate far beyond the swept one (each actor
+/// update a long step), with only the named parts of the safety layer on.
+fn reckless(s: &Setup, stability: bool, rollback: bool) -> config::LearningParams {
+    let mut l = s.learning.clone();
+    // About 1,900 times the swept rate for sway and 90 times for yaw (sway's rewards are the
+    // smaller): long enough steps to leave the stable set within a few trials.
+    l.nac.alpha = PerDof {
+        sway: 4000.0,
+        yaw: 200.0,
+    };
+    l.safety.trust_region.enabled = false;
+    l.safety.stability.enabled = stability;
+    l.safety.rollback.enabled = rollback;
+    l
+}
+
+/// A short step-two session from the LQR gains on the twin with its gap off, over several seeds.
+fn reckless_sessions(
+    s: &Setup,
+    learning: &config::LearningParams,
+) -> Vec<Vec<trainer::twin_world::TrialResult>> {
+    let mut twin = twin("twin-ideal.toml");
+    twin.trials.duration_s = 30.0;
+    let start = policy_checkpoint(&s.scenario, learning, experiment::lqr_gains(s).unwrap());
+    [1, 2, 3]
+        .into_iter()
+        .map(|seed| {
+            let mut w = TwinWorld::from_checkpoint(
+                &s.scenario,
+                &twin,
+                &start,
+                Eyes::Ideal,
+                seed,
+                Mode::Learn,
+            )
+            .unwrap();
+            (0..behaviour::session_trials(&learning.evaluation, 10))
+                .map(|_| w.run_trial())
+                .collect()
+        })
+        .collect()
+}
+
+/// With long actor steps, learning proposes gains outside the set the identified model says is
+/// stable with its margin (shown with the guard off); with the guard on, every such update is
+/// refused, counted, and the gains never leave the set, in every seed.
+#[test]
+fn a_destabilising_update_is_refused() {
+    let s = setup();
+    let guarded = reckless(&s, true, false);
+    let set = |dof| {
+        behaviour::step_two::guard(&s.scenario, &guarded, dof)
+            .unwrap()
+            .stable_set
+            .unwrap()
+    };
+    let outside = |runs: &[Vec<trainer::twin_world::TrialResult>], dof: Dof| {
+        runs.iter()
+            .flatten()
+            .filter(|t| !set(dof).contains(*t.gains.get(dof)))
+            .count()
+    };
+    let free = reckless_sessions(&s, &reckless(&s, false, false));
+    let kept = reckless_sessions(&s, &guarded);
+    for dof in Dof::ALL {
+        // The unguarded learner leaves the set in some trial of every seed: the updates the guard
+        // must refuse do happen.
+        for run in &free {
+            assert!(
+                outside(std::slice::from_ref(run), dof) > 0,
+                "{dof}: never left the set"
+            );
+            assert_eq!(run.last().unwrap().refused.get(dof), &0);
+        }
+        assert_eq!(outside(&kept, dof), 0, "{dof}: a guarded gain left the set");
+        for run in &kept {
+            assert!(
+                *run.last().unwrap().refused.get(dof) > 0,
+                "{dof}: nothing refused"
+            );
+        }
+    }
+}
+
+/// Keeping the best: with long actor steps and no guard, some evaluation of every seed finds the
+/// learned policy worse than the best beyond the tolerance; the policy then in force is the best one,
+/// which the protocol, evaluating it alone, scores exactly at the best return.
+#[test]
+fn a_rollback_restores_the_best_policy() {
+    let s = setup();
+    let learning = reckless(&s, false, true);
+    let mut twin = twin("twin-ideal.toml");
+    twin.trials.duration_s = 30.0;
+    let e = learning.evaluation.trials;
+    for (i, run) in reckless_sessions(&s, &learning).iter().enumerate() {
+        let seed = i as u64 + 1;
+        let mut restored = 0;
+        for (t, trial) in run.iter().enumerate() {
+            for dof in Dof::ALL {
+                if !*trial.rolled_back.get(dof) {
+                    continue;
+                }
+                restored += 1;
+                let (before, after) = (*run[t - 1].gains.get(dof), *trial.gains.get(dof));
+                assert_ne!(before, after, "seed {seed} {dof}: the policy was replaced");
+                let mut gains = trial.gains;
+                *gains.get_mut(dof) = after;
+                let alone = evaluate(
+                    &s.scenario,
+                    &twin,
+                    Eyes::Ideal,
+                    &policy_checkpoint(&s.scenario, &learning, gains),
+                    seed,
+                    e,
+                )
+                .unwrap()
+                .mean();
+                assert_eq!(
+                    alone.get(dof).to_bits(),
+                    trial.best.get(dof).to_bits(),
+                    "seed {seed} {dof}: the restored policy is the best one"
+                );
+                assert!(*trial.evaluated.get(dof) < *trial.best.get(dof));
+            }
+        }
+        assert!(restored > 0, "seed {seed}: no rollback");
+        assert!(run.last().unwrap().rollbacks.sway + run.last().unwrap().rollbacks.yaw > 0);
+    }
 }

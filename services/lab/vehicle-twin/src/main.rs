@@ -224,6 +224,12 @@ fn main() -> ExitCode {
                 Timer::Timeout(limits.tick()),
                 |_| {
                     while let Some(sp) = thrusters.receive()? {
+                        if let Some(cause) = sp.stop_cause() {
+                            // A failsafe stop answers no frame: the thrusters hold 0 from now on.
+                            tracing::debug!(%cause, "the vehicle stopped the thrusters");
+                            lockstep.plant_mut().stop_thrusters();
+                            continue;
+                        }
                         if let Some(l) = latency.as_mut() {
                             l.answered(sp.stamp.time_ns)?;
                         }
@@ -243,7 +249,10 @@ fn main() -> ExitCode {
             let tick = (period / 4).max(Duration::from_millis(1));
             rt.serve(&[thrusters.listener()], Timer::Interval(tick), |_| {
                 while let Some(sp) = thrusters.receive()? {
-                    if let Some(l) = latency.as_mut() {
+                    // A failsafe stop's zeros are applied like setpoints, but answer no frame.
+                    if sp.stop == 0
+                        && let Some(l) = latency.as_mut()
+                    {
                         l.answered(sp.stamp.time_ns)?;
                     }
                     clock.on_setpoints(sp.as_slice());

@@ -5,7 +5,8 @@
 //!
 //! A setpoint becomes thrust in this order: made safe (clipped to [-1, 1], NaN to 0), the dead band
 //! (a smaller magnitude gives no thrust), the asymmetry (reverse thrust scaled by `reverse_gain`),
-//! then the lag (the thrust follows that target with the time constant). The layout turns the
+//! the gain (thrust per unit of setpoint against the identified model's), then the lag (the thrust
+//! follows that target with the time constant). The layout turns the
 //! thrusts into the model's normalised forces; the body velocities are relative to the water, so
 //! the current adds to the pose's drift.
 
@@ -21,7 +22,10 @@ pub struct ThrusterModel {
     dead_band: f64,
     /// Reverse thrust per unit of reverse setpoint.
     reverse_gain: f64,
-    /// Each thruster's thrust now (in setpoint units: 1 is full forward thrust).
+    /// Thrust per unit of setpoint against the identified model's.
+    gain: f64,
+    /// Each thruster's thrust now (in the identified model's units: 1 is what the model takes for
+    /// full forward thrust).
     thrust: Vec<f64>,
 }
 
@@ -40,13 +44,14 @@ impl ThrusterModel {
             } else {
                 1.0
             },
+            gain: t.gain.factor(),
             thrust: vec![0.0; thrusters],
         }
     }
 
-    /// The thrust a setpoint asks for, once settled: dead band and asymmetry applied.
+    /// The thrust a setpoint asks for, once settled: dead band, asymmetry and gain applied.
     pub fn target(&self, setpoint: f64) -> f64 {
-        target(self.dead_band, self.reverse_gain, setpoint)
+        self.gain * target(self.dead_band, self.reverse_gain, setpoint)
     }
 
     /// The thrusts now.
@@ -62,13 +67,14 @@ impl ThrusterModel {
     /// Advances the thrusts by `h` seconds towards the setpoints' targets; returns the mean thrust
     /// of each thruster over the interval (what the model integrates). Missing setpoints count as 0.
     pub fn advance(&mut self, setpoints: &[f64], h: f64, mean: &mut [f64]) {
-        let (dead_band, reverse_gain) = (self.dead_band, self.reverse_gain);
+        let (dead_band, reverse_gain, gain) = (self.dead_band, self.reverse_gain, self.gain);
         for (i, (t, m)) in self.thrust.iter_mut().zip(mean.iter_mut()).enumerate() {
-            let target = target(
-                dead_band,
-                reverse_gain,
-                setpoints.get(i).copied().unwrap_or(0.0),
-            );
+            let target = gain
+                * target(
+                    dead_band,
+                    reverse_gain,
+                    setpoints.get(i).copied().unwrap_or(0.0),
+                );
             let start = *t;
             match self.lag_s {
                 Some(tau) => {
@@ -333,6 +339,29 @@ mod tests {
             sym.state().velocity.u.abs() < 0.02,
             "only the model's drift"
         );
+    }
+
+    /// A vehicle more responsive than identified: the same setpoint gives `factor` times the thrust,
+    /// so (linear damping) `factor` times the steady speed; off, the identified thrust.
+    #[test]
+    fn the_thrust_gain_scales_the_response() {
+        let twin = only(|t| t.thrusters.gain.enabled = true);
+        let f = twin.thrusters.gain.factor;
+        assert!(f != 1.0);
+        let s = Scenario::default();
+        let mut strong = TwinPlant::new(&s, &twin);
+        assert_eq!(strong.thrusters().target(0.2), f * 0.2);
+        strong.step(&[0.0, 0.0, 0.2], 60.0);
+        let m = s.model.sway;
+        let v = strong.state().velocity.v;
+        assert!(
+            (v - (f * 0.2 * m.alpha + m.delta) / m.gamma).abs() < 1e-4,
+            "{v}"
+        );
+        let mut ideal = TwinPlant::new(&s, &TwinParams::ideal());
+        assert_eq!(ideal.thrusters().target(0.2), 0.2);
+        ideal.step(&[0.0, 0.0, 0.2], 60.0);
+        assert!((ideal.state().velocity.v - (0.2 * m.alpha + m.delta) / m.gamma).abs() < 1e-4);
     }
 
     #[test]

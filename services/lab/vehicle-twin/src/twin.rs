@@ -9,9 +9,16 @@
 //! is dropped with the configured probability, except a trial's last one (its status is how the
 //! vehicle side learns that the trial ended).
 //!
-//! **Thrusters.** The setpoints answering a frame drive the plant until the next frame. Without an
-//! answer (a dropped frame, a late mesh) the thrusters hold the last setpoints, until the watchdog
-//! stops them after `watchdog_s` of twin time without any.
+//! **Frame noise per start mark.** The image noise and the dropped frames are drawn per start mark
+//! (see [`Shot::mark`]) and step: trials from the same mark meet the same frame noise, so what tells
+//! them apart is the policy and its exploration (common random numbers: two policies evaluated from
+//! the same marks compare, and an evaluation is repeatable).
+//!
+//! **Thrusters.** The setpoints answering a frame drive the plant until the next frame; with a
+//! camera-to-command latency of L frames (`[latency]`), they reach the thrusters L periods later and
+//! drive the plant for the period after that. Without an answer (a dropped frame, a late mesh) the
+//! thrusters hold the last setpoints, until the watchdog stops them after `watchdog_s` of twin time
+//! without any.
 //!
 //! **Trials.** A trial lasts `duration_s` of twin time (its last step has status `TimeLimit`) or
 //! ends when the cable leaves the image (`Lost`). The answer to a trial's last frame is not applied:
@@ -20,12 +27,16 @@
 
 use crate::plant::TwinPlant;
 use adapters::FrameMeta;
-use config::{ResetParams, Scenario, TwinParams, derive_seed};
+use config::{MAX_THRUSTERS, ResetParams, Scenario, TwinParams, derive_seed};
 use messages::{CableObservationData, StepStatus};
 use model::{Cable, Camera, PoseRate, VehicleState};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
+use std::collections::VecDeque;
 use vision::{Renderer, VisionError};
+
+/// One frame's answer on its way to the thrusters (`None`: no answer came).
+type InFlight = Option<[f64; MAX_THRUSTERS]>;
 
 /// One frame the twin's camera takes.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -37,6 +48,9 @@ pub struct Shot {
     /// Trials count from 0, steps from 0 at the trial's start.
     pub trial: u32,
     pub step: u32,
+    /// The trial's start mark: the index of its start pose in the cycle (the trial itself when every
+    /// trial starts anew).
+    pub mark: u32,
     pub status: StepStatus,
     /// The plant when the frame was taken, and its pose's rate (the current included).
     pub state: VehicleState,
@@ -51,6 +65,12 @@ impl Shot {
     /// Twin time in nanoseconds (the frames' clock).
     pub fn time_ns(&self) -> u64 {
         (self.time_s * 1e9).round() as u64
+    }
+
+    /// The index of this frame's image noise: its start mark and step (a re-sent frame is the same
+    /// image, and every trial from a mark meets the same noise).
+    pub fn noise_index(&self) -> u64 {
+        ((self.mark as u64) << 32) | self.step as u64
     }
 
     /// The frame's metadata as the camera adapters carry it.
@@ -76,6 +96,7 @@ pub struct TwinEye {
     renderer: Option<Renderer>,
     drop_rate: f64,
     drops: StdRng,
+    seed: u64,
     width: u32,
     height: u32,
 }
@@ -105,7 +126,8 @@ impl TwinEye {
             limits: scenario.observation.clone(),
             renderer,
             drop_rate: twin.frames.dropped.rate(),
-            drops: StdRng::seed_from_u64(derive_seed(seed, "twin/drops")),
+            drops: StdRng::seed_from_u64(derive_seed(seed, "twin/drops/0")),
+            seed,
             width: scenario.camera.width,
             height: scenario.camera.height,
         })
@@ -138,18 +160,23 @@ impl TwinEye {
         ))
     }
 
+    /// Restarts the drops' stream at the start of a trial from `mark`.
+    fn start_drops(&mut self, mark: u32) {
+        self.drops = StdRng::seed_from_u64(derive_seed(self.seed, &format!("twin/drops/{mark}")));
+    }
+
     /// Draws whether the next frame is lost (one draw per frame, terminal or not, so the drops of
-    /// a seed do not depend on when trials end).
+    /// a trial do not depend on when it ends).
     fn draw_drop(&mut self) -> bool {
         let u: f64 = self.drops.random();
         u < self.drop_rate
     }
 
     /// Renders `shot`'s image into `out` (`width * height` bytes). The noise is the frame's own
-    /// (its `seq`), so a re-sent frame is the same image.
+    /// ([`Shot::noise_index`]), so a re-sent frame is the same image.
     pub fn render(&mut self, shot: &Shot, out: &mut [u8]) -> Result<(), VisionError> {
         match &mut self.renderer {
-            Some(r) => r.render(&shot.state.pose, &shot.rate, shot.seq - 1, out),
+            Some(r) => r.render(&shot.state.pose, &shot.rate, shot.noise_index(), out),
             None => Err(VisionError::Config {
                 what: "twin camera",
                 invalid: config::Invalid::new("images", false, "the twin was built without images"),
@@ -191,10 +218,15 @@ pub struct Twin {
     dt: f64,
     steps_per_trial: u32,
     watchdog_s: f64,
+    /// Answers not yet at the thrusters, oldest first, and how many periods each waits.
+    in_flight: VecDeque<InFlight>,
+    latency: usize,
     held: Vec<f64>,
-    /// Twin time since the last setpoints arrived.
+    /// Twin time since the last setpoints arrived at the thrusters.
     since_answer_s: f64,
     current: Option<Shot>,
+    /// The current trial's start mark.
+    mark: u32,
     trial_dropped: u32,
     dropped: u64,
 }
@@ -221,9 +253,12 @@ impl Twin {
             dt,
             steps_per_trial: ((twin.trials.duration_s / dt).round() as u32).max(1),
             watchdog_s: twin.thrusters.watchdog_s,
+            in_flight: VecDeque::with_capacity(twin.latency.periods() + 1),
+            latency: twin.latency.periods(),
             held: vec![0.0; n],
             since_answer_s: 0.0,
             current: None,
+            mark: 0,
             trial_dropped: 0,
             dropped: 0,
         })
@@ -265,6 +300,12 @@ impl Twin {
         self.current.as_ref()
     }
 
+    /// The vehicle side stopped the thrusters (a failsafe stop, not an answer to a frame): they hold
+    /// 0 from now on, until setpoints come again.
+    pub fn stop_thrusters(&mut self) {
+        self.held.iter_mut().for_each(|h| *h = 0.0);
+    }
+
     /// Takes the first trial's first frame (again, if called twice: it restarts nothing).
     pub fn start(&mut self) -> Shot {
         if let Some(s) = self.current {
@@ -281,7 +322,8 @@ impl Twin {
             return (self.start(), None);
         };
         let seq = now.seq + 1;
-        let time_s = now.time_s + self.dt;
+        // From the frame count, not summed: every period is the same number of nanoseconds.
+        let time_s = (seq - 1) as f64 * self.dt;
         if now.status.is_terminal() {
             let end = TrialEnd {
                 trial: now.trial,
@@ -291,15 +333,9 @@ impl Twin {
             };
             return (self.begin_trial(now.trial + 1, seq, time_s), Some(end));
         }
-        match answer {
+        match self.arrive(answer) {
             Some(sp) => {
-                for (h, v) in self
-                    .held
-                    .iter_mut()
-                    .zip(sp.iter().chain(std::iter::repeat(&0.0)))
-                {
-                    *h = *v;
-                }
+                self.held.iter_mut().zip(sp).for_each(|(h, v)| *h = v);
                 self.since_answer_s = 0.0;
             }
             None => self.since_answer_s += self.dt,
@@ -318,6 +354,35 @@ impl Twin {
             StepStatus::Running
         };
         (self.take(seq, time_s, now.trial, step, status), None)
+    }
+
+    /// The answer that reaches the thrusters now: `answer` itself without latency, else the one
+    /// sent `latency` frames ago (none in a trial's first `latency` periods).
+    fn arrive(&mut self, answer: Option<&[f64]>) -> InFlight {
+        let answer = answer.map(|sp| {
+            let mut v = [0.0; MAX_THRUSTERS];
+            v.iter_mut().zip(sp).for_each(|(d, s)| *d = *s);
+            v
+        });
+        if self.latency == 0 {
+            return answer;
+        }
+        self.in_flight.push_back(answer);
+        if self.in_flight.len() > self.latency {
+            self.in_flight.pop_front().flatten()
+        } else {
+            None
+        }
+    }
+
+    /// The start mark of trial `trial`: its place in the cycle of start poses, or the trial itself
+    /// when every trial starts anew.
+    pub fn mark_of(&self, trial: u32) -> u32 {
+        if self.cycle_len > 0 {
+            trial % self.cycle_len as u32
+        } else {
+            trial
+        }
     }
 
     /// Where trial `trial` starts: a new random pose, or the next of the cycle.
@@ -342,11 +407,15 @@ impl Twin {
 
     fn begin_trial(&mut self, trial: u32, seq: u64, time_s: f64) -> Shot {
         let pose = self.start_pose(trial);
+        self.mark = self.mark_of(trial);
+        self.eye.start_drops(self.mark);
         self.plant.place(VehicleState {
             pose,
             ..Default::default()
         });
         self.held.iter_mut().for_each(|h| *h = 0.0);
+        // What was on its way answered the last trial's frames.
+        self.in_flight.clear();
         self.since_answer_s = 0.0;
         self.trial_dropped = 0;
         self.take(seq, time_s, trial, 0, StepStatus::Running)
@@ -366,6 +435,7 @@ impl Twin {
             time_s,
             trial,
             step,
+            mark: self.mark,
             status,
             state,
             rate,
@@ -500,6 +570,41 @@ mod tests {
         assert_eq!(twin.plant().thrust()[2], 0.1);
     }
 
+    /// With a latency of L frames, the answer to frame t drives the plant from frame t + L on: the
+    /// thrust history is the undelayed one shifted by L periods, and a trial starts with nothing in
+    /// flight.
+    #[test]
+    fn a_latency_delays_each_answer_by_its_frames() {
+        let s = Scenario::default();
+        let thrusts = |latency: Option<u32>| {
+            let mut t = TwinParams::ideal();
+            t.trials.duration_s = 2.0;
+            if let Some(frames) = latency {
+                t.latency.enabled = true;
+                t.latency.frames = frames;
+            }
+            let mut twin = Twin::new(&s, &t, 2, false).unwrap();
+            twin.start();
+            (0..25)
+                .map(|k| {
+                    let (shot, _) = twin.advance(Some(&[0.0, 0.0, 0.01 * (k + 1) as f64]));
+                    (shot.step, twin.plant().thrust()[2])
+                })
+                .collect::<Vec<_>>()
+        };
+        let (now, late) = (thrusts(None), thrusts(Some(2)));
+        assert_eq!(TwinParams::default().latency.periods(), 0, "off by default");
+        for k in 0..25 {
+            let (step, thrust) = late[k];
+            if step == 0 {
+                continue; // the answer to a trial's last frame is never applied
+            }
+            // Step n's thrust answers frame n - 1 without latency, frame n - 3 with two frames.
+            let want = if step >= 3 { now[k - 2].1 } else { 0.0 };
+            assert_eq!(thrust, want, "frame {k} (step {step})");
+        }
+    }
+
     /// Frames are dropped at the configured rate, never a trial's last; off, none is.
     #[test]
     fn frames_are_dropped_at_the_configured_rate() {
@@ -570,7 +675,8 @@ mod tests {
                 seq,
                 time_s: 0.0,
                 trial: 0,
-                step: 0,
+                step: seq as u32,
+                mark: 0,
                 status: StepStatus::Running,
                 state,
                 rate: PoseRate::default(),
@@ -611,6 +717,44 @@ mod tests {
             "darker corners"
         );
         assert!((corner_vs_centre(&c) - 1.0).abs() < 1e-9, "even light");
+    }
+
+    /// Trials from the same start mark meet the same dropped frames and image noise; other marks
+    /// other ones.
+    #[test]
+    fn frame_noise_is_drawn_per_start_mark() {
+        let s = Scenario::default();
+        let mut t = TwinParams::default();
+        t.trials.duration_s = 20.0;
+        t.frames.dropped.probability = 0.2;
+        let mut twin = Twin::new(&s, &t, 4, false).unwrap();
+        let mut trials: Vec<Vec<(u32, bool, u64)>> = vec![vec![]];
+        let mut shot = twin.start();
+        while trials.len() <= 7 {
+            trials
+                .last_mut()
+                .unwrap()
+                .push((shot.mark, shot.dropped, shot.noise_index()));
+            let (next, end) = twin.advance(Some(&[0.2, 0.2, 0.05]));
+            if end.is_some() {
+                trials.push(vec![]);
+            }
+            shot = next;
+        }
+        let cycle = t.trials.cycle as usize;
+        for k in cycle..7 {
+            let (a, b) = (&trials[k], &trials[k - cycle]);
+            assert_eq!(
+                a[0].0,
+                b[0].0,
+                "trial {k} starts from the mark of trial {}",
+                k - cycle
+            );
+            let n = a.len().min(b.len()) - 1; // a trial's last frame is never dropped
+            assert_eq!(a[..n], b[..n], "trial {k}");
+        }
+        assert_ne!(trials[0][..50], trials[1][..50]);
+        assert!(trials[0].iter().any(|f| f.1), "frames are dropped");
     }
 
     #[test]

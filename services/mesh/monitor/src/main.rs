@@ -1,11 +1,14 @@
-//! `monitor`: prints each episode's returns as the mesh learns, and writes the run's record.
+//! `monitor`: prints each episode's returns as the mesh learns, and writes the run's record (after
+//! every episode, so a restarted monitor carries on from it). Reports whose stamp is refused
+//! (`runtime::lockstep::Screen`) or that cannot be true (`monitor::check`) are not recorded.
 
 use anyhow::Context;
 use clap::Parser;
 use config::Dof;
 use messages::topics;
-use monitor::{Episodes, TracePoint};
-use runtime::{CommonArgs, Flow, Timer};
+use monitor::{Episodes, RunRecord, TracePoint};
+use runtime::lockstep::{Screen, ScreenLimits, Verdict};
+use runtime::{CommonArgs, Flow, Tally, Timer};
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -19,10 +22,15 @@ use std::time::{Duration, Instant};
 struct Args {
     #[command(flatten)]
     common: CommonArgs,
-    /// Stop after this many episodes (0: until SIGTERM).
+    /// Stop after the episode numbered N - 1 (from 0) is recorded (0: until SIGTERM).
     #[arg(long, default_value_t = 0)]
-    episodes: usize,
-    /// Write {"episodes","yaw","sway","steps","wall_s","lost"} here when stopping.
+    episodes: u32,
+    /// When one behaviour reported the last episode, wait this long for the other's report; then
+    /// take it as lost and stop.
+    #[arg(long, default_value_t = 10.0, value_name = "S")]
+    linger_s: f64,
+    /// Write the run's record here when stopping: per episode its returns, steps, whether the cable
+    /// was lost, whether it was an evaluation trial, the gains; the evaluations; the safety counts.
     #[arg(long)]
     json: Option<PathBuf>,
     /// Also record every observation, one JSON line each: {"episode","step","time_s","found","x_g","theta"}.
@@ -53,17 +61,57 @@ fn main() -> ExitCode {
             ),
             None => (None, None),
         };
-        let mut episodes = Episodes::new();
+        let restarts = runtime::restarts();
+        let mut episodes = match (&args.json, restarts) {
+            (Some(path), n) if n > 0 && path.exists() => {
+                let text = std::fs::read_to_string(path)
+                    .with_context(|| format!("reading {}", path.display()))?;
+                let record: RunRecord = serde_json::from_str(&text)
+                    .with_context(|| format!("{} is not a run record", path.display()))?;
+                tracing::info!(path = %path.display(), episodes = record.episodes, restarts = n, "restarted: resuming the run's record");
+                Episodes::resume(&record)
+            }
+            _ => Episodes::new(),
+        };
+        let limits = ScreenLimits {
+            // One report per episode: its seq jumps by the episode's steps, which a twin in lockstep
+            // takes far faster than the sample period, so the jump is bounded by no period.
+            period: Duration::from_nanos(1),
+            ..ScreenLimits::reports(
+                rt.scenario().timing.sample_time_s,
+                // Reports are not control: a report is judged stale only when it is far older than a trial.
+                Duration::from_secs(600),
+            )
+        };
+        let mut screens = inboxes
+            .each_ref()
+            .map(|(_, inbox)| Screen::new(inbox.service(), limits));
+        let mut refused = Tally::default();
+        let clock = *rt.clock();
+        let linger = Duration::from_secs_f64(args.linger_s.max(0.0));
+        let mut lingering: Option<Instant> = None;
         let start = Instant::now();
         let mut listeners = vec![inboxes[0].1.listener(), inboxes[1].1.listener()];
         if let Some(observations) = &trace_in {
             listeners.push(observations.listener());
         }
         cli::outln!(
-            "episode | steps | lost |  yaw return | sway return | yaw K              | sway K"
+            "episode | steps | lost | eval |  yaw return | sway return | yaw K              | sway K"
         )?;
         let sample_time = rt.scenario().timing.sample_time_s;
-        rt.serve(&listeners, Timer::Timeout(Duration::from_secs(10)), |_| {
+        let write = |episodes: &Episodes| -> anyhow::Result<()> {
+            let Some(path) = &args.json else {
+                return Ok(());
+            };
+            let record = episodes.record(start.elapsed().as_secs_f64());
+            let tmp = path.with_extension("json.tmp");
+            std::fs::write(&tmp, serde_json::to_string(&record)?)
+                .with_context(|| format!("writing {}", tmp.display()))?;
+            std::fs::rename(&tmp, path)
+                .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
+            Ok(())
+        };
+        rt.serve(&listeners, Timer::Timeout(Duration::from_secs(1)), |_| {
             if let (Some(observations), Some(out)) = (&trace_in, &mut trace_out) {
                 for o in observations.drain()? {
                     let line = TracePoint::new(&o, sample_time);
@@ -71,35 +119,57 @@ fn main() -> ExitCode {
                     out.write_all(b"\n")?;
                 }
             }
-            for (dof, inbox) in &inboxes {
+            for ((dof, inbox), screen) in inboxes.iter().zip(&mut screens) {
                 for stats in inbox.drain()? {
+                    let now = clock.now_ns();
+                    match screen.check(&stats.stamp, now) {
+                        Verdict::New => {}
+                        Verdict::Repeat | Verdict::Refused(_) => continue,
+                    }
+                    if let Err(why) = monitor::check(&stats) {
+                        if let Some(earlier) = refused.count(now) {
+                            tracing::warn!(dof = %dof, episode = stats.stamp.episode, earlier_unlogged = earlier, total = refused.total(), "report refused: {why}");
+                        }
+                        continue;
+                    }
+                    screen.accept(&stats.stamp, now);
                     if let Some(r) = episodes.add(*dof, stats) {
                         cli::outln!(
-                            "{:7} | {:5} | {:4} | {:11.3} | {:11.4} | [{:7.3}, {:7.3}] | [{:7.3}, {:7.3}]",
-                            r.episode, r.steps, if r.lost { "yes" } else { "" }, r.yaw, r.sway, r.yaw_gain[0], r.yaw_gain[1], r.sway_gain[0], r.sway_gain[1]
+                            "{:7} | {:5} | {:4} | {:4} | {:11.3} | {:11.4} | [{:7.3}, {:7.3}] | [{:7.3}, {:7.3}]",
+                            r.episode, r.steps, if r.lost { "yes" } else { "" }, if r.evaluation { "yes" } else { "" },
+                            r.yaw, r.sway, r.yaw_gain[0], r.yaw_gain[1], r.sway_gain[0], r.sway_gain[1]
                         )?;
+                        write(&episodes)?;
                     }
                 }
             }
-            let done = episodes.done().len();
-            Ok(if args.episodes > 0 && done >= args.episodes { Flow::Stop } else { Flow::Continue })
+            if args.episodes == 0 {
+                return Ok(Flow::Continue);
+            }
+            if episodes.pending_from(args.episodes - 1) {
+                lingering.get_or_insert_with(Instant::now);
+            }
+            if episodes.finished(args.episodes, lingering.map(|t| t.elapsed()), linger) {
+                return Ok(Flow::Stop);
+            }
+            Ok(Flow::Continue)
         })?;
         if let Some(out) = &mut trace_out {
             out.flush()?;
         }
         let record = episodes.record(start.elapsed().as_secs_f64());
+        let gaps = episodes.gaps();
+        if !gaps.is_empty() {
+            tracing::warn!(episodes = ?gaps, "episodes without a record: their reports were lost");
+        }
         tracing::info!(
             episodes = record.episodes,
             steps = record.steps,
             wall_s = record.wall_s,
             "run recorded"
         );
+        write(&episodes)?;
         if let Some(path) = &args.json {
-            let tmp = path.with_extension("json.tmp");
-            std::fs::write(&tmp, serde_json::to_string(&record)?)
-                .with_context(|| format!("writing {}", tmp.display()))?;
-            std::fs::rename(&tmp, path)
-                .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
             tracing::info!("wrote {}", path.display());
         }
         Ok(())

@@ -12,6 +12,11 @@
 //! [[service]]
 //! name = "simulator"
 //! args = ["--episodes", "{episodes}"]   # {key} comes from `supervisor --set key=value`
+//! [[service]]
+//! name = "recorder"
+//! only_if = "{record}"                  # runs only when this is not empty
+//! observer = true                       # starts first (the others once it is ready), stops last
+//! args = ["--out", "{record}"]
 //! ```
 
 use serde::Deserialize;
@@ -94,6 +99,13 @@ pub struct ServiceSpec {
     pub args: Vec<String>,
     /// Overrides `[restart] enabled` for this service.
     pub restart: Option<bool>,
+    /// The service runs only when this text, placeholders filled, is not empty (`"{record}"`: only
+    /// when a file to record to is given).
+    pub only_if: Option<String>,
+    /// It watches the others (the flight recorder): it is started first and the others only once
+    /// it says it is ready, and stopped last, so it sees the mesh's first and last messages.
+    #[serde(default)]
+    pub observer: bool,
 }
 
 /// Why a mesh file cannot be used; names the file.
@@ -144,9 +156,14 @@ impl MeshFile {
             }
         }
         for name in &mesh.mesh.stop_when {
-            if !mesh.service.iter().any(|s| &s.name == name) {
+            let Some(s) = mesh.service.iter().find(|s| &s.name == name) else {
                 return Err(invalid(format!(
                     "mesh.stop_when names `{name}`, which is not a [[service]]"
+                )));
+            };
+            if s.only_if.is_some() {
+                return Err(invalid(format!(
+                    "mesh.stop_when names `{name}`, which may not run (it has `only_if`)"
                 )));
             }
         }
@@ -154,7 +171,7 @@ impl MeshFile {
     }
 
     /// Each service's program and arguments, placeholders filled from `vars` (then the file's
-    /// defaults), `--endpoint` added.
+    /// defaults), `--endpoint` added; a service whose `only_if` is empty is left out.
     pub fn commands(
         &self,
         vars: &BTreeMap<String, String>,
@@ -162,31 +179,46 @@ impl MeshFile {
     ) -> Result<Vec<ServiceCommand>, MeshError> {
         let mut all = self.mesh.defaults.clone();
         all.extend(vars.iter().map(|(k, v)| (k.clone(), v.clone())));
-        self.service
-            .iter()
-            .map(|s| {
-                let mut args = vec!["--endpoint".to_owned(), self.mesh.endpoint.clone()];
-                for a in &s.args {
-                    let arg = substitute(a, &all).map_err(|key| MeshError::Invalid {
-                        file: path.to_owned(),
-                        message: format!(
-                            "service `{}`: no value for `{{{key}}}` (pass --set {key}=VALUE)",
-                            s.name
-                        ),
-                    })?;
-                    // An argument that is only an empty placeholder is left out: optional flags.
-                    if !arg.is_empty() {
-                        args.push(arg);
-                    }
-                }
-                Ok(ServiceCommand {
-                    name: s.name.clone(),
-                    binary: s.binary.clone().unwrap_or_else(|| s.name.clone()),
-                    args,
-                    restart: s.restart.unwrap_or(self.restart.enabled),
-                })
+        let fill = |service: &str, text: &str| {
+            substitute(text, &all).map_err(|key| MeshError::Invalid {
+                file: path.to_owned(),
+                message: format!(
+                    "service `{service}`: no value for `{{{key}}}` (pass --set {key}=VALUE)"
+                ),
             })
-            .collect()
+        };
+        let mut out = Vec::new();
+        for s in &self.service {
+            if let Some(cond) = &s.only_if
+                && fill(&s.name, cond)?.trim().is_empty()
+            {
+                continue;
+            }
+            out.push(self.command(s, &fill)?);
+        }
+        Ok(out)
+    }
+
+    fn command(
+        &self,
+        s: &ServiceSpec,
+        fill: &impl Fn(&str, &str) -> Result<String, MeshError>,
+    ) -> Result<ServiceCommand, MeshError> {
+        let mut args = vec!["--endpoint".to_owned(), self.mesh.endpoint.clone()];
+        for a in &s.args {
+            let arg = fill(&s.name, a)?;
+            // An argument that is only an empty placeholder is left out: optional flags.
+            if !arg.is_empty() {
+                args.push(arg);
+            }
+        }
+        Ok(ServiceCommand {
+            name: s.name.clone(),
+            binary: s.binary.clone().unwrap_or_else(|| s.name.clone()),
+            args,
+            restart: s.restart.unwrap_or(self.restart.enabled),
+            observer: s.observer,
+        })
     }
 }
 
@@ -197,6 +229,8 @@ pub struct ServiceCommand {
     pub binary: String,
     pub args: Vec<String>,
     pub restart: bool,
+    /// Started first and stopped last (see [`ServiceSpec::observer`]).
+    pub observer: bool,
 }
 
 /// The `supervisor` command line that runs `mesh` with the experiment's `seed` in the iceoryx2
@@ -252,7 +286,7 @@ mod tests {
 [mesh]
 endpoint = "sim"
 stop_when = ["simulator"]
-defaults = { eyes = "ideal" }
+defaults = { eyes = "ideal", record = "" }
 [restart]
 enabled = true
 [[service]]
@@ -262,6 +296,11 @@ restart = false
 [[service]]
 name = "camera"
 args = ["--eyes", "{eyes}"]
+[[service]]
+name = "recorder"
+only_if = "{record}"
+observer = true
+args = ["--out", "{record}"]
 "#;
 
     #[test]
@@ -273,6 +312,18 @@ args = ["--eyes", "{eyes}"]
         assert!(!cmds[0].restart);
         assert_eq!(cmds[1].args, ["--endpoint", "sim", "--eyes", "ideal"]);
         assert!(cmds[1].restart);
+        assert!(
+            !mesh.service[2].args.is_empty() && cmds.len() == 2,
+            "the recorder is left out while {{record}} has no value: {cmds:?}"
+        );
+        let recording = BTreeMap::from([
+            ("episodes".to_owned(), "5".to_owned()),
+            ("record".to_owned(), "dive.mcap".to_owned()),
+        ]);
+        let cmds = mesh.commands(&recording, Path::new("m.toml")).unwrap();
+        assert_eq!(cmds.len(), 3);
+        assert_eq!(cmds[2].args, ["--endpoint", "sim", "--out", "dive.mcap"]);
+        assert!(cmds[2].observer && !cmds[0].observer);
         let optional = BTreeMap::from([
             ("episodes".to_owned(), "5".to_owned()),
             ("eyes".to_owned(), String::new()),
@@ -310,6 +361,13 @@ args = ["--eyes", "{eyes}"]
             .unwrap_err()
             .to_string();
         assert!(err.contains("endpoint"), "{err}");
+        let err = MeshFile::parse(
+            &MESH.replace("stop_when = [\"simulator\"]", "stop_when = [\"recorder\"]"),
+            Path::new("x.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("only_if"), "{err}");
     }
 
     #[test]

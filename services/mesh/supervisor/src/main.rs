@@ -1,11 +1,14 @@
-//! `supervisor`: runs a mesh of services from a file in `config/`. Starts every service, restarts one
-//! that dies (after removing its iceoryx2 leftovers, with backoff and a limit) when the file says so,
-//! stops when the services named in `stop_when` are done, and on SIGINT/SIGTERM stops them all at
-//! once: SIGTERM to each, a grace period, then SIGKILL (`runtime::process`). Every start, exit and
-//! restart is logged.
+//! `supervisor`: runs a mesh of services from a file in `config/`. Starts every service (an observer
+//! such as the flight recorder first, the others once it is ready), restarts one that dies (after
+//! removing its iceoryx2 leftovers, with backoff and a limit) when the file says so, stops when the
+//! services named in `stop_when` are done, and on SIGINT/SIGTERM stops them all: SIGTERM to each, a
+//! grace period, then SIGKILL (`runtime::process`), the observers last. Every start, exit, restart
+//! and stop is logged and published on the endpoint's `supervisor/events` topic.
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
+use iceoryx2::prelude::{Node, ipc};
+use messages::{Endpoint, Outbox, ServiceEvent, SupervisorEvent, topics};
 use runtime::process::{self, Child, Spawn};
 use std::collections::BTreeMap;
 use std::os::fd::AsRawFd;
@@ -37,6 +40,9 @@ struct Args {
     /// Seconds services get to stop after SIGTERM before SIGKILL.
     #[arg(long, default_value_t = 10.0)]
     stop_timeout_s: f64,
+    /// Seconds an observer (`observer = true`) gets to say it is ready before the mesh is given up.
+    #[arg(long, default_value_t = 30.0)]
+    ready_timeout_s: f64,
     /// The configuration directory, passed to every service.
     #[arg(long, default_value = "config", env = "CABLETRACK_CONFIG")]
     config: PathBuf,
@@ -131,8 +137,89 @@ impl Signals {
     }
 }
 
+/// Publishes the supervisor's events; a failure to publish is logged once and never stops the mesh.
+struct Events {
+    outbox: Option<Outbox<SupervisorEvent>>,
+    seq: u64,
+    failed: bool,
+}
+
+impl Events {
+    fn open(node: &Node<ipc::Service>, endpoint: Endpoint) -> Events {
+        let outbox = match Outbox::open(node, endpoint, &topics::SUPERVISOR_EVENTS) {
+            Ok(o) => Some(o),
+            Err(e) => {
+                tracing::warn!("the supervisor's events are not published: {e}");
+                None
+            }
+        };
+        Events {
+            outbox,
+            seq: 0,
+            failed: false,
+        }
+    }
+
+    fn send(&mut self, kind: ServiceEvent, service: &Service, pid: u32, status: i32, detail: u32) {
+        let Some(outbox) = &self.outbox else {
+            return;
+        };
+        self.seq += 1;
+        let wall = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64);
+        let mut event = SupervisorEvent::new(self.seq, wall, kind, &service.cmd.name);
+        event.pid = pid;
+        event.status = status;
+        event.restarts = service.restarts.len() as u32;
+        event.detail = detail;
+        if let Err(e) = outbox.send(event)
+            && !self.failed
+        {
+            self.failed = true;
+            tracing::warn!("cannot publish the supervisor's events: {e}");
+        }
+    }
+}
+
+/// An exit status as an event carries it: the code, or minus the signal.
+fn status_code(status: ExitStatus) -> i32 {
+    use std::os::unix::process::ExitStatusExt;
+    status
+        .code()
+        .or_else(|| status.signal().map(|s| -s))
+        .unwrap_or(0)
+}
+
+/// Starts `s` now.
+fn start(s: &mut Service, env: &[(&str, String)], ready_pipe: bool) -> Result<Child> {
+    let mut spawn = Spawn::new(&s.program)
+        .name(&s.cmd.name)
+        .args(&s.cmd.args)
+        .envs(env.iter().map(|(k, v)| (k, v)))
+        // A restarted service may carry on from what it wrote (the monitor's record).
+        .env(runtime::RESTARTS_ENV, s.restarts.len().to_string())
+        // If the supervisor itself is killed, its services get SIGTERM instead of running on as
+        // orphans.
+        .die_with_parent();
+    if ready_pipe {
+        spawn = spawn.ready_pipe();
+    }
+    let child = spawn
+        .start()
+        .with_context(|| format!("starting `{}`", s.cmd.name))?;
+    tracing::info!(service = %s.cmd.name, pid = child.started_pid(), args = ?s.cmd.args, "started");
+    Ok(child)
+}
+
 fn run(args: Args) -> Result<ExitCode> {
     let mesh = MeshFile::load(&args.mesh)?;
+    let endpoint: Endpoint = mesh
+        .mesh
+        .endpoint
+        .parse()
+        .map_err(anyhow::Error::msg)
+        .with_context(|| format!("{}: mesh.endpoint", args.mesh.display()))?;
     let mut vars: BTreeMap<String, String> = args.set.iter().cloned().collect();
     vars.entry("seed".into())
         .or_insert_with(|| args.seed.to_string());
@@ -150,6 +237,8 @@ fn run(args: Args) -> Result<ExitCode> {
         .with_context(|| format!("config directory {}", args.config.display()))?;
     let iox = args.iox.config()?;
     let signals = Signals::install()?;
+    let node = runtime::create_node("supervisor", &iox)?;
+    let mut events = Events::open(&node, endpoint);
 
     let env = [
         ("CABLETRACK_CONFIG", config_dir.display().to_string()),
@@ -174,7 +263,6 @@ fn run(args: Args) -> Result<ExitCode> {
             restarts: Vec::new(),
         });
     }
-    let endpoint: messages::Endpoint = mesh.mesh.endpoint.parse().map_err(anyhow::Error::msg)?;
     let watch = watch::Watch::start(
         &iox,
         endpoint,
@@ -185,6 +273,24 @@ fn run(args: Args) -> Result<ExitCode> {
     let stop_when = mesh.mesh.stop_when.clone();
     let restart = mesh.restart.clone();
 
+    // The observers first: the others start once each has said it is ready, so an observer sees
+    // the mesh's first message.
+    let ready_timeout = Duration::from_secs_f64(args.ready_timeout_s);
+    for s in services.iter_mut().filter(|s| s.cmd.observer) {
+        let mut child = start(s, &env, true)?;
+        events.send(ServiceEvent::Started, s, child.started_pid(), 0, 0);
+        if let Err(e) = child.wait_ready(ready_timeout) {
+            let tail = child.tail(20);
+            child.stop(Duration::from_secs_f64(args.stop_timeout_s));
+            bail!("observer `{}`: {e}\n{tail}", s.cmd.name);
+        }
+        tracing::info!(service = %s.cmd.name, "ready");
+        s.state = State::Running {
+            child,
+            since: Instant::now(),
+        };
+    }
+
     let outcome = loop {
         // Start what is due.
         let now = Instant::now();
@@ -192,17 +298,8 @@ fn run(args: Args) -> Result<ExitCode> {
             if let State::Restarting { at } = s.state
                 && at <= now
             {
-                let child = Spawn::new(&s.program)
-                    .name(&s.cmd.name)
-                    .args(&s.cmd.args)
-                    .envs(env.iter().map(|(k, v)| (k, v)))
-                    .env(runtime::RESTARTS_ENV, s.restarts.len().to_string())
-                    // If the supervisor itself is killed, its services get SIGTERM instead of
-                    // running on as orphans.
-                    .die_with_parent()
-                    .start()
-                    .with_context(|| format!("starting `{}`", s.cmd.name))?;
-                tracing::info!(service = %s.cmd.name, pid = child.started_pid(), args = ?s.cmd.args, "started");
+                let child = start(s, &env, false)?;
+                events.send(ServiceEvent::Started, s, child.started_pid(), 0, 0);
                 s.state = State::Running { child, since: now };
             }
         }
@@ -231,6 +328,8 @@ fn run(args: Args) -> Result<ExitCode> {
                 continue;
             };
             let ran = since.elapsed().as_secs_f64();
+            let pid = child.started_pid();
+            events.send(ServiceEvent::Exited, s, pid, status_code(status), 0);
             if status.success() {
                 tracing::info!(service = %s.cmd.name, ran_s = ran, "exited");
                 s.state = State::Exited(status);
@@ -246,6 +345,13 @@ fn run(args: Args) -> Result<ExitCode> {
                 Some(delay) => {
                     let cleaned = runtime::remove_dead_nodes(&iox);
                     tracing::info!(service = %s.cmd.name, delay_ms = delay.as_millis() as u64, cleaned, "restarting");
+                    events.send(
+                        ServiceEvent::Restarting,
+                        s,
+                        pid,
+                        status_code(status),
+                        delay.as_millis() as u32,
+                    );
                     s.restarts.push(Instant::now() + delay);
                     s.state = State::Restarting {
                         at: Instant::now() + delay,
@@ -283,7 +389,12 @@ fn run(args: Args) -> Result<ExitCode> {
         signals.wait(next);
     };
 
-    stop_all(&mut services, Duration::from_secs_f64(args.stop_timeout_s));
+    // The observers last: they see the others' last messages and the events of their stop.
+    let grace = Duration::from_secs_f64(args.stop_timeout_s);
+    stop_all(&mut services, false, grace, &mut events);
+    stop_all(&mut services, true, grace, &mut events);
+    drop(events);
+    drop(node);
     let cleaned = runtime::remove_dead_nodes(&iox);
     if cleaned > 0 {
         tracing::warn!(
@@ -304,7 +415,8 @@ fn run(args: Args) -> Result<ExitCode> {
 }
 
 /// How long a service that is to be restarted has been silent, if it is stuck: it has beaten since it
-/// started, then missed its heartbeat's deadline, and its node is alive (a dead node's exit is
+/// started, then missed its heartbeat's deadline [`watch::STUCK_AFTER_MISSES`] times in a row, and
+/// its node is alive (a dead node's exit is
 /// reaped as such).
 fn stuck(
     pulse: &watch::Pulse,
@@ -315,25 +427,42 @@ fn stuck(
 ) -> Option<Duration> {
     let last = pulse.last.filter(|&l| l > since)?;
     pulse.missed?;
+    if pulse.misses < watch::STUCK_AFTER_MISSES {
+        return None;
+    }
     (restart && watch::node_alive(iox, pid) != Some(false)).then(|| last.elapsed())
 }
 
-/// SIGTERM to every running service, up to `grace` for them to exit, SIGKILL for the rest.
-fn stop_all(services: &mut [Service], grace: Duration) {
-    let mut running: Vec<(&str, &mut Child)> = services
+/// SIGTERM to every running service that is (or is not) an observer, up to `grace` for them to
+/// exit, SIGKILL for the rest.
+fn stop_all(services: &mut [Service], observers: bool, grace: Duration, events: &mut Events) {
+    let mut running: Vec<(usize, &mut Child)> = services
         .iter_mut()
-        .filter_map(|s| match &mut s.state {
-            State::Running { child, .. } => Some((s.cmd.name.as_str(), child)),
+        .enumerate()
+        .filter(|(_, s)| s.cmd.observer == observers)
+        .filter_map(|(i, s)| match &mut s.state {
+            State::Running { child, .. } => Some((i, child)),
             _ => None,
         })
         .collect();
+    let pids: Vec<u32> = running.iter().map(|(_, c)| c.started_pid()).collect();
     let mut children: Vec<&mut Child> = running.iter_mut().map(|(_, c)| &mut **c).collect();
     let stopped = process::stop_all(&mut children, grace);
-    for ((name, _), s) in running.iter().zip(stopped) {
-        if s.killed {
-            tracing::warn!(service = %name, "did not stop in time: killed");
+    let which: Vec<usize> = running.iter().map(|(i, _)| *i).collect();
+    for ((i, pid), st) in which.into_iter().zip(pids).zip(stopped) {
+        let s = &mut services[i];
+        if st.killed {
+            tracing::warn!(service = %s.cmd.name, "did not stop in time: killed");
         } else {
-            tracing::info!(service = %name, status = %s.status, "stopped");
+            tracing::info!(service = %s.cmd.name, status = %st.status, "stopped");
         }
+        events.send(
+            ServiceEvent::Stopped,
+            s,
+            pid,
+            status_code(st.status),
+            st.killed as u32,
+        );
+        s.state = State::Exited(st.status);
     }
 }

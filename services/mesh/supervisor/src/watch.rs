@@ -1,7 +1,8 @@
 //! The supervisor's health watch: a thread blocked in a WaitSet on every service's heartbeat, each
 //! attached with the heartbeat's deadline (`messages::topics::health`). A missed deadline wakes the
-//! supervisor's loop, which asks `Node::list` whether the silent service is alive (then it is stuck
-//! and is killed, and restarted like one that died) or already dead (its exit follows as SIGCHLD).
+//! supervisor's loop; after [`STUCK_AFTER_MISSES`] in a row it asks `Node::list` whether the silent
+//! service is alive (then it is stuck and is killed, and restarted like one that died) or already dead
+//! (its exit follows as SIGCHLD).
 
 use anyhow::{Context, Result, anyhow};
 use iceoryx2::config::Config as IoxConfig;
@@ -24,7 +25,14 @@ pub struct Pulse {
     pub last: Option<Instant>,
     /// When the deadline was last missed (cleared by the next beat).
     pub missed: Option<Instant>,
+    /// Deadlines missed in a row since the last beat.
+    pub misses: u32,
 }
+
+/// Deadlines a service must miss in a row to be taken for stuck: one miss can be a process
+/// descheduled for a moment on a loaded machine (or writing a file); two cost half a second of
+/// silence, and a stuck service is still replaced within a second.
+pub const STUCK_AFTER_MISSES: u32 = 2;
 
 /// The running watch; stops its thread when dropped.
 pub struct Watch {
@@ -175,9 +183,11 @@ fn watch(
                     p[i] = Pulse {
                         last: Some(now),
                         missed: None,
+                        misses: 0,
                     };
                 } else if misses[i] {
                     p[i].missed = Some(now);
+                    p[i].misses += 1;
                     wake_loop = true;
                 }
             }

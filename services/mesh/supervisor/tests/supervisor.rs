@@ -1,6 +1,6 @@
 //! The supervisor as the vehicle runs it: restarts a service that dies, and stops everything cleanly.
 
-use messages::{Endpoint, topics};
+use messages::{Endpoint, ServiceEvent, topics};
 use std::path::Path;
 use std::time::Duration;
 use testkit::{Namespace, Process};
@@ -46,6 +46,7 @@ fn a_service_killed_with_sigkill_is_restarted_and_the_loop_resumes_then_sigterm_
     let mesh = restarting_mesh(dir.path());
     let probe = testkit::probe(&ns, Endpoint::Sim);
     let setpoints = probe.inbox(&topics::THRUSTER_SETPOINTS);
+    let events = probe.inbox(&topics::SUPERVISOR_EVENTS);
     let mut supervisor = start(&ns, &mesh, dir.path());
 
     let before = probe
@@ -62,6 +63,21 @@ fn a_service_killed_with_sigkill_is_restarted_and_the_loop_resumes_then_sigterm_
         .service("perception")
         .expect("perception was restarted");
     assert_ne!(new_perception, perception);
+    // ... and published: its death, its restart, its new start.
+    let event = |kind: ServiceEvent, pid: u32| {
+        probe
+            .wait_for(&events, T, |e| {
+                e.kind() == Some(kind) && e.service() == "perception" && e.pid == pid
+            })
+            .unwrap_or_else(|| panic!("no {kind:?} event of perception:\n{}", supervisor.log()))
+    };
+    let died = event(ServiceEvent::Exited, perception);
+    assert_eq!(died.status, -libc::SIGKILL);
+    let restarting = event(ServiceEvent::Restarting, perception);
+    assert!(restarting.detail > 0, "the delay before the restart");
+    let started = event(ServiceEvent::Started, new_perception);
+    assert_eq!(started.restarts, 1);
+    assert!(died.seq < restarting.seq && restarting.seq < started.seq);
     let log = supervisor.log();
     assert!(
         log.contains("died") && log.contains("restarting"),
@@ -78,6 +94,7 @@ fn a_service_killed_with_sigkill_is_restarted_and_the_loop_resumes_then_sigterm_
         .collect();
     assert_eq!(pids.len(), 8, "seven services and the monitor run");
     drop(setpoints);
+    drop(events);
     drop(probe);
     let status = supervisor.terminate(T);
     assert!(
@@ -206,5 +223,46 @@ fn a_bad_mesh_file_is_refused_by_name() {
         supervisor.log().contains("mesh.toml") && supervisor.log().contains("argz"),
         "{}",
         supervisor.log()
+    );
+}
+
+#[test]
+fn an_observer_that_never_gets_ready_stops_the_mesh_before_the_others_start() {
+    let ns = Namespace::new("suo");
+    let dir = tempfile::tempdir().unwrap();
+    // Its file would be in a directory that is a file: it fails before it is ready.
+    let blocker = dir.path().join("not-a-directory");
+    std::fs::write(&blocker, "").unwrap();
+    let text = format!(
+        r#"
+[mesh]
+endpoint = "sim"
+[[service]]
+name = "broken-recorder"
+binary = "recorder"
+observer = true
+args = ["--out", "{}/dive.mcap"]
+[[service]]
+name = "camera"
+"#,
+        blocker.display()
+    );
+    let mesh = dir.path().join("mesh.toml");
+    std::fs::write(&mesh, text).unwrap();
+    let mut supervisor = Process::start(
+        &ns,
+        &testkit::binary("supervisor"),
+        &["--mesh", mesh.to_str().unwrap()],
+    );
+    let status = supervisor.wait(T).expect("the supervisor gives up");
+    assert!(!status.success());
+    let log = supervisor.log();
+    assert!(
+        log.contains("broken-recorder") && log.contains("before saying it was ready"),
+        "{log}"
+    );
+    assert!(
+        !log.contains("service=camera"),
+        "nothing else was started:\n{log}"
     );
 }

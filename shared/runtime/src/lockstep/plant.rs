@@ -174,6 +174,11 @@ impl<P: Plant> Lockstep<P> {
         &mut self.plant
     }
 
+    /// The plant, once the lockstep is over.
+    pub fn into_plant(self) -> P {
+        self.plant
+    }
+
     /// Episodes ended so far.
     pub fn episodes_done(&self) -> u32 {
         self.done

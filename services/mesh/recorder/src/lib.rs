@@ -1,0 +1,65 @@
+//! The flight recorder: every topic of a mesh's endpoint into one MCAP file that the robotics
+//! viewers open (Foxglove, Lichtblick), the same channels served live, and the reader of such
+//! records (replay, the report, the tests).
+//!
+//! - [`channels`]: one channel per topic, each with its schema: the camera's images as
+//!   `foxglove.RawImage` (`mono8`), perception's estimate also drawn over them as
+//!   `foxglove.ImageAnnotations`, everything else as JSON with a JSON Schema ([`json`]).
+//! - [`keep`]: the pure core: each step's message once, at the stamp's time, frames decimated,
+//!   holes counted.
+//! - [`writer`]: the file: chunked, zstd, flushed each second, rotated by size into parts
+//!   ([`part_path`]), closed with its summary and index; the live view on the same channels.
+//! - [`figure`]: a dive at a glance (a frame with the cable found, the estimate, the commands and
+//!   the thrusters against time), drawn from its record with `plot`.
+//! - [`read`]: every message back, from every part, a part cut by a SIGKILL up to its last
+//!   complete chunk.
+//!
+//! The process (`main.rs`) subscribes to every topic through `messages::Tap`s (the recorder's own
+//! buffer, no listener: a publisher is never slowed or blocked by it), wakes once per step on the
+//! thruster setpoints' event, and drains every tap then.
+
+pub mod channels;
+pub mod figure;
+pub mod image;
+pub mod json;
+pub mod keep;
+pub mod read;
+pub mod writer;
+
+pub use channels::{Channel, CommandDof};
+pub use keep::{Counts, Keep, Keeper, Overlay};
+pub use read::{Message, ReadError, ReadSummary, Reader, Recorded, metadata, read};
+pub use writer::{FlightRecorder, Options, RecordError, Totals, parts};
+
+use std::path::{Path, PathBuf};
+
+/// The file of part `k` of the record `base`: `base` itself for part 0, then `STEM.k.EXT`
+/// (`dive.mcap`, `dive.1.mcap`, `dive.2.mcap`, ...).
+pub fn part_path(base: &Path, k: u32) -> PathBuf {
+    if k == 0 {
+        return base.to_owned();
+    }
+    let stem = base
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let name = match base.extension() {
+        Some(ext) => format!("{stem}.{k}.{}", ext.to_string_lossy()),
+        None => format!("{stem}.{k}"),
+    };
+    base.with_file_name(name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parts_are_numbered_beside_the_first() {
+        let base = Path::new("out/dive.mcap");
+        assert_eq!(part_path(base, 0), base);
+        assert_eq!(part_path(base, 1), Path::new("out/dive.1.mcap"));
+        assert_eq!(part_path(base, 12), Path::new("out/dive.12.mcap"));
+        assert_eq!(part_path(Path::new("dive"), 2), Path::new("dive.2"));
+    }
+}

@@ -1,0 +1,227 @@
+//! `recorder`: the mesh's flight recorder. Subscribes to every topic of its endpoint with the
+//! recorder's own buffers (`messages::Tap`), wakes once per step (on the thruster setpoints' event,
+//! or after 100 ms without one), writes what it drained into the MCAP record, flushes it every
+//! second and publishes its progress; SIGTERM or SIGINT drains once more and closes the file with its
+//! index. With `--live` the same channels are served to a viewer.
+
+use clap::Parser;
+use config::Dof;
+use messages::topics;
+use recorder::{CommandDof, FlightRecorder, Options};
+use runtime::{CommonArgs, Flow, Runtime, Timer};
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+#[derive(Parser)]
+#[command(
+    version,
+    about = "The flight recorder: every topic of the endpoint into an MCAP file (Foxglove, Lichtblick), optionally served live."
+)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// The record's file (its next parts are FILE's stem with .1, .2, ...). An existing record is
+    /// continued with a new part.
+    #[arg(long, value_name = "FILE.mcap")]
+    out: PathBuf,
+    /// Keep the image of every N-th step of an episode (1: every frame). Headers, estimates and
+    /// everything else are kept at every step.
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    frame_every: u32,
+    /// Start a new part when the current one reaches this size.
+    #[arg(long, default_value_t = 1024, value_name = "MB")]
+    rotate_mb: u64,
+    /// Close a chunk at this uncompressed size (and at every flush).
+    #[arg(long, default_value_t = 1024, value_name = "KB")]
+    chunk_kb: u64,
+    /// Flush the file this often: a SIGKILL loses at most what came since.
+    #[arg(long, default_value_t = 1000, value_name = "MS")]
+    flush_ms: u64,
+    /// Serve the channels live (foxglove WebSocket protocol) on HOST:PORT: `--live` alone listens on
+    /// this machine only (127.0.0.1:8765); port 0 takes a free one.
+    #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765", value_name = "HOST:PORT")]
+    live: Option<SocketAddr>,
+}
+
+/// Without a step for this long, drain anyway (the episode reports, the supervisor's events).
+const QUIET: Duration = Duration::from_millis(100);
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    runtime::run("recorder", &args.common, |rt| record(rt, &args))
+}
+
+/// Every topic of the endpoint, read by the recorder.
+struct Taps {
+    states: messages::Tap<messages::VehicleStateMsg>,
+    frames: messages::FrameTap,
+    observations: messages::Tap<messages::CableObservationMsg>,
+    commands: Vec<(CommandDof, messages::Tap<messages::DofCommand>)>,
+    setpoints: messages::Tap<messages::ThrusterSetpoints>,
+    learning: Vec<(Dof, messages::Tap<messages::LearningStats>)>,
+    events: messages::Tap<messages::SupervisorEvent>,
+}
+
+impl Taps {
+    fn open(rt: &Runtime) -> anyhow::Result<Taps> {
+        Ok(Taps {
+            states: rt.tap(&topics::VEHICLE_STATE)?,
+            frames: rt.frame_tap()?,
+            observations: rt.tap(&topics::CABLE_OBSERVATION)?,
+            commands: CommandDof::ALL
+                .into_iter()
+                .map(|d| Ok((d, rt.tap(&d.topic())?)))
+                .collect::<anyhow::Result<_>>()?,
+            setpoints: rt.tap(&topics::THRUSTER_SETPOINTS)?,
+            learning: Dof::ALL
+                .into_iter()
+                .map(|d| Ok((d, rt.tap(&topics::learning(d))?)))
+                .collect::<anyhow::Result<_>>()?,
+            events: rt.tap(&topics::SUPERVISOR_EVENTS)?,
+        })
+    }
+
+    /// Everything unread, into the record, in the loop's order (a step's frame before its
+    /// estimate, before its commands, before its setpoints).
+    fn drain(&self, rec: &mut FlightRecorder) -> anyhow::Result<()> {
+        while let Some(m) = self.states.receive()? {
+            rec.state(&m);
+        }
+        while self
+            .frames
+            .receive_with(|header, image| rec.frame(header, image))?
+            .is_some()
+        {}
+        while let Some(m) = self.observations.receive()? {
+            rec.observation(&m);
+        }
+        for (dof, tap) in &self.commands {
+            while let Some(m) = tap.receive()? {
+                rec.command(*dof, &m);
+            }
+        }
+        while let Some(m) = self.setpoints.receive()? {
+            rec.setpoints(&m);
+        }
+        for (dof, tap) in &self.learning {
+            while let Some(m) = tap.receive()? {
+                rec.learning(*dof, &m);
+            }
+        }
+        while let Some(m) = self.events.receive()? {
+            rec.event(&m);
+        }
+        Ok(())
+    }
+}
+
+fn record(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
+    let taps = Taps::open(rt)?;
+    // One wake-up per step: the setpoints close every step of the loop. The supervisor's events
+    // wake it too, so a restart is recorded when it happens.
+    let step_done = rt.listener(&topics::THRUSTER_SETPOINTS)?;
+    let event = rt.listener(&topics::SUPERVISOR_EVENTS)?;
+    let status_out = rt.outbox(&topics::RECORDER_STATUS)?;
+    let metadata = BTreeMap::from([
+        ("endpoint".to_owned(), rt.endpoint().to_string()),
+        ("seed".to_owned(), rt.seed().to_string()),
+        (
+            "log_time".to_owned(),
+            match rt.endpoint() {
+                messages::Endpoint::Sim => "the stamp's time: simulated ns since the run's start",
+                messages::Endpoint::Vehicle => {
+                    "the stamp's time: the frame source's clock in ns (the twin's time since its start)"
+                }
+            }
+            .to_owned(),
+        ),
+        (
+            "recorder".to_owned(),
+            format!("cabletrack recorder {}", env!("CARGO_PKG_VERSION")),
+        ),
+    ]);
+    let mut opts = Options::new(&args.out);
+    opts.frame_every = args.frame_every;
+    opts.rotate_bytes = args.rotate_mb.saturating_mul(1 << 20);
+    opts.chunk_bytes = args.chunk_kb.saturating_mul(1 << 10);
+    let mut rec = FlightRecorder::create(opts, metadata)?;
+    if let Some(addr) = args.live {
+        let port = rec.serve_live(addr)?;
+        if !addr.ip().is_loopback() {
+            tracing::warn!(%addr, "the live view is reachable from other machines");
+        }
+        tracing::info!(
+            url = %format!("ws://{}:{port}", addr.ip()),
+            "live view: open it in Foxglove or Lichtblick (Open connection, Foxglove WebSocket)"
+        );
+    }
+    tracing::info!(
+        out = %args.out.display(),
+        frame_every = args.frame_every,
+        rotate_mb = args.rotate_mb,
+        "recording every topic of the endpoint"
+    );
+    rt.ready();
+    let flush_every = Duration::from_millis(args.flush_ms.max(1));
+    let mut last_flush = Instant::now();
+    let mut last_progress = Instant::now();
+    let served = rt.serve(&[&step_done, &event], Timer::Timeout(QUIET), |_| {
+        taps.drain(&mut rec)?;
+        if last_flush.elapsed() >= flush_every {
+            last_flush = Instant::now();
+            rec.flush()?;
+            rec.rotate_if_due()?;
+            let status = rec.status();
+            status_out.send(status)?;
+            if last_progress.elapsed() >= Duration::from_secs(60) {
+                last_progress = Instant::now();
+                tracing::info!(
+                    messages = status.messages,
+                    mb = status.bytes as f64 / 1e6,
+                    holes = status.holes,
+                    "recording"
+                );
+            }
+        }
+        Ok(Flow::Continue)
+    });
+    // Whatever ended the loop, keep what is there: drain once more and close with the index.
+    let drained = taps.drain(&mut rec);
+    let status = rec.status();
+    let totals = rec.close()?;
+    let _ = status_out.send(status);
+    let holes: u64 = totals.counts.values().map(|c| c.holes).sum();
+    for (c, n) in &totals.counts {
+        tracing::info!(
+            topic = c.topic(),
+            written = n.written,
+            repeats = n.repeats,
+            holes = n.holes,
+            decimated = n.decimated,
+            "recorded"
+        );
+    }
+    if holes > 0 {
+        tracing::warn!(
+            holes,
+            "some steps were missed on some topics (the recorder fell behind, or they were never published)"
+        );
+    }
+    tracing::info!(
+        parts = totals.parts.len(),
+        messages = totals.messages,
+        mb = totals.bytes as f64 / 1e6,
+        "flight record closed: {}",
+        totals
+            .parts
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    served?;
+    drained
+}

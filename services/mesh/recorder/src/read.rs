@@ -1,0 +1,263 @@
+//! Reading a flight record back: every part in order, every message in file order, decoded into the
+//! payloads the mesh sent (the `mcap` crate's streaming reader: it needs no index, so a part cut by
+//! a SIGKILL is read up to its last complete chunk, and reported as cut).
+
+use crate::channels::{Channel, CommandDof};
+use crate::image::Image;
+use crate::{json, writer};
+use messages::{
+    CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats, RecorderStatus,
+    SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
+};
+use prost::Message as _;
+use std::collections::BTreeMap;
+use std::io::BufReader;
+use std::path::{Path, PathBuf};
+
+/// A recorded message, as the mesh sent it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Recorded {
+    State(VehicleStateMsg),
+    FrameHeader(CameraFrameHeader),
+    Image(Image),
+    Observation(CableObservationMsg),
+    /// Perception's overlay (not decoded: it is drawn from the observation).
+    Overlay,
+    Command(CommandDof, DofCommand),
+    Setpoints(ThrusterSetpoints),
+    Learning(config::Dof, LearningStats),
+    Event(SupervisorEvent),
+    Status(RecorderStatus),
+}
+
+/// One message of a record.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Message {
+    pub channel: Channel,
+    pub log_time: u64,
+    pub item: Recorded,
+}
+
+/// A part that ended before its end: cut while written (a SIGKILL, a power cut).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Cut {
+    pub path: PathBuf,
+    /// Messages read from it before the cut.
+    pub messages: u64,
+    pub reason: String,
+}
+
+/// What a read went through.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ReadSummary {
+    pub parts: Vec<PathBuf>,
+    pub messages: u64,
+    pub per_channel: BTreeMap<Channel, u64>,
+    pub cut: Vec<Cut>,
+    /// Messages of topics this reader does not know (a newer recorder's), by topic.
+    pub unknown: BTreeMap<String, u64>,
+}
+
+/// Why a record cannot be read; names the file (and topic).
+#[derive(Debug, thiserror::Error)]
+pub enum ReadError {
+    #[error("no flight record at {}", path.display())]
+    NotFound { path: PathBuf },
+    #[error("cannot open {}: {source}", path.display())]
+    Open {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{}: not a readable MCAP file: {source}", path.display())]
+    Mcap {
+        path: PathBuf,
+        source: mcap::McapError,
+    },
+    #[error("{}: a message on {topic} cannot be decoded: {reason}", path.display())]
+    Decode {
+        path: PathBuf,
+        topic: String,
+        reason: String,
+    },
+}
+
+fn decode(channel: Channel, data: &[u8]) -> Result<Recorded, String> {
+    fn js<'a, T: serde::Deserialize<'a>>(data: &'a [u8]) -> Result<T, String> {
+        serde_json::from_slice(data).map_err(|e| e.to_string())
+    }
+    Ok(match channel {
+        Channel::VehicleState => Recorded::State((&js::<json::VehicleStateJson>(data)?).into()),
+        Channel::FrameHeader => Recorded::FrameHeader((&js::<json::FrameHeaderJson>(data)?).into()),
+        Channel::Image => {
+            let raw =
+                foxglove::messages::RawImage::decode(data).map_err(|e| format!("protobuf: {e}"))?;
+            Recorded::Image(Image::try_from(raw).map_err(|e| e.to_string())?)
+        }
+        Channel::Observation => {
+            Recorded::Observation((&js::<json::CableObservationJson>(data)?).into())
+        }
+        Channel::Annotation => Recorded::Overlay,
+        Channel::SurgeCommand | Channel::SwayCommand | Channel::YawCommand => {
+            let dof = CommandDof::ALL
+                .into_iter()
+                .find(|d| d.channel() == channel)
+                .unwrap_or(CommandDof::Surge);
+            Recorded::Command(dof, (&js::<json::CommandJson>(data)?).into())
+        }
+        Channel::Setpoints => Recorded::Setpoints((&js::<json::SetpointsJson>(data)?).into()),
+        Channel::SwayLearning => {
+            Recorded::Learning(config::Dof::Sway, (&js::<json::LearningJson>(data)?).into())
+        }
+        Channel::YawLearning => {
+            Recorded::Learning(config::Dof::Yaw, (&js::<json::LearningJson>(data)?).into())
+        }
+        Channel::Events => Recorded::Event((&js::<json::EventJson>(data)?).into()),
+        Channel::Status => Recorded::Status((&js::<json::StatusJson>(data)?).into()),
+    })
+}
+
+/// A record's messages, pulled one by one: every part in order, every message in file order. A part
+/// cut while written is read up to its last complete chunk and listed in [`ReadSummary::cut`].
+pub struct Reader {
+    parts: std::vec::IntoIter<PathBuf>,
+    current: Option<(
+        PathBuf,
+        u64,
+        mcap::io::MessageReader<BufReader<std::fs::File>>,
+    )>,
+    summary: ReadSummary,
+}
+
+impl Reader {
+    pub fn open(path: &Path) -> Result<Reader, ReadError> {
+        let parts = writer::parts(path);
+        if parts.is_empty() {
+            return Err(ReadError::NotFound {
+                path: path.to_owned(),
+            });
+        }
+        Ok(Reader {
+            summary: ReadSummary {
+                parts: parts.clone(),
+                ..Default::default()
+            },
+            parts: parts.into_iter(),
+            current: None,
+        })
+    }
+
+    /// What was read so far (all of it once the reader is exhausted).
+    pub fn summary(&self) -> &ReadSummary {
+        &self.summary
+    }
+
+    fn next_message(&mut self) -> Result<Option<Message>, ReadError> {
+        loop {
+            let Some((part, read, reader)) = self.current.as_mut() else {
+                let Some(part) = self.parts.next() else {
+                    return Ok(None);
+                };
+                let file = std::fs::File::open(&part).map_err(|source| ReadError::Open {
+                    path: part.clone(),
+                    source,
+                })?;
+                let reader = mcap::io::MessageReader::new(BufReader::with_capacity(1 << 20, file));
+                self.current = Some((part, 0, reader));
+                continue;
+            };
+            let m = match reader.next() {
+                None => {
+                    self.current = None;
+                    continue;
+                }
+                Some(Ok(m)) => m,
+                Some(Err(
+                    e @ (mcap::McapError::UnexpectedEof | mcap::McapError::UnexpectedEoc),
+                )) => {
+                    self.summary.cut.push(Cut {
+                        path: part.clone(),
+                        messages: *read,
+                        reason: e.to_string(),
+                    });
+                    self.current = None;
+                    continue;
+                }
+                Some(Err(source)) => {
+                    return Err(ReadError::Mcap {
+                        path: part.clone(),
+                        source,
+                    });
+                }
+            };
+            *read += 1;
+            let Some(channel) = Channel::from_topic(&m.channel.topic) else {
+                *self
+                    .summary
+                    .unknown
+                    .entry(m.channel.topic.clone())
+                    .or_default() += 1;
+                continue;
+            };
+            let item = decode(channel, &m.data).map_err(|reason| ReadError::Decode {
+                path: part.clone(),
+                topic: m.channel.topic.clone(),
+                reason,
+            })?;
+            self.summary.messages += 1;
+            *self.summary.per_channel.entry(channel).or_default() += 1;
+            return Ok(Some(Message {
+                channel,
+                log_time: m.log_time,
+                item,
+            }));
+        }
+    }
+}
+
+impl Iterator for Reader {
+    type Item = Result<Message, ReadError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.next_message().transpose()
+    }
+}
+
+/// Reads the record at `path` (all its parts), calling `f` with each message in file order.
+pub fn read(path: &Path, mut f: impl FnMut(Message)) -> Result<ReadSummary, ReadError> {
+    let mut reader = Reader::open(path)?;
+    for m in reader.by_ref() {
+        f(m?);
+    }
+    Ok(reader.summary)
+}
+
+/// The record's `cabletrack` metadata (endpoint, seed, what log time is, ...), from its first part:
+/// the recorder writes it before the first message.
+pub fn metadata(path: &Path) -> Result<BTreeMap<String, String>, ReadError> {
+    use std::io::Read;
+    let open = |source| ReadError::Open {
+        path: path.to_owned(),
+        source,
+    };
+    let mut head = Vec::new();
+    std::fs::File::open(path)
+        .map_err(open)?
+        .take(1 << 20)
+        .read_to_end(&mut head)
+        .map_err(open)?;
+    let records = mcap::read::LinearReader::new(&head).map_err(|source| ReadError::Mcap {
+        path: path.to_owned(),
+        source,
+    })?;
+    for record in records {
+        match record {
+            Ok(mcap::records::Record::Metadata(m)) if m.name == "cabletrack" => {
+                return Ok(m.metadata);
+            }
+            // The first chunk or the end of what was read: the recorder writes it before both.
+            Ok(mcap::records::Record::Chunk { .. }) | Err(_) => break,
+            Ok(_) => {}
+        }
+    }
+    Ok(BTreeMap::new())
+}

@@ -1,0 +1,520 @@
+//! Writing a flight record: one foxglove `Context` holds the channels and feeds the MCAP file (and,
+//! when asked, the live view's WebSocket server, which so serves exactly the file's channels). The
+//! file is chunked and zstd-compressed, flushed on request (a flush closes the open chunk: what a
+//! SIGKILL can lose), rotated to a new part when it reaches its size limit, and closed with its
+//! summary and index.
+
+use crate::channels::{Channel, CommandDof};
+use crate::keep::{Keep, Keeper, Overlay};
+use crate::{image, json, part_path};
+use foxglove::messages::{ImageAnnotations, RawImage};
+use foxglove::{
+    Context, FoxgloveError, McapCompression, McapWriteOptions, McapWriterHandle, PartialMetadata,
+    RawChannel, Schema, WebSocketServerHandle,
+};
+use messages::{
+    CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats, RecorderStatus,
+    SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
+};
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Seek, SeekFrom, Write};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+/// How a record is written.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Options {
+    /// The record's file: its first part (the next parts are `part_path(path, k)`).
+    pub path: PathBuf,
+    /// A part reaching this size is closed and the next one started.
+    pub rotate_bytes: u64,
+    /// The uncompressed size at which a chunk is closed.
+    pub chunk_bytes: u64,
+    /// zstd's level (1: the fastest of its standard levels).
+    pub zstd_level: u32,
+    /// Keep the image of every `frame_every`-th step (see `crate::keep`).
+    pub frame_every: u32,
+}
+
+impl Options {
+    pub fn new(path: impl Into<PathBuf>) -> Self {
+        Options {
+            path: path.into(),
+            rotate_bytes: 1 << 30,
+            chunk_bytes: 1 << 20,
+            zstd_level: 1,
+            frame_every: 1,
+        }
+    }
+}
+
+/// Why a record cannot be written; names the file or address.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    #[error("cannot create the flight record {}: {source}", path.display())]
+    Create {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("writing the flight record {}: {source}", path.display())]
+    Write {
+        path: PathBuf,
+        source: FoxgloveError,
+    },
+    #[error("cannot serve the live view on {addr}: {source}")]
+    Live {
+        addr: SocketAddr,
+        source: FoxgloveError,
+    },
+    #[error("channel {topic}: {source}")]
+    Channel {
+        topic: &'static str,
+        source: FoxgloveError,
+    },
+    #[error("bad option: {0}")]
+    Option(String),
+}
+
+/// A file that counts its length, so the recorder can rotate by size while the MCAP writer owns it.
+struct CountingFile {
+    inner: BufWriter<File>,
+    pos: u64,
+    len: Arc<AtomicU64>,
+}
+
+impl Write for CountingFile {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.pos += n as u64;
+        self.len.fetch_max(self.pos, Ordering::Relaxed);
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+impl Seek for CountingFile {
+    fn seek(&mut self, to: SeekFrom) -> std::io::Result<u64> {
+        self.pos = self.inner.seek(to)?;
+        Ok(self.pos)
+    }
+}
+
+/// The flight recorder's totals at its close.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Totals {
+    pub parts: Vec<PathBuf>,
+    pub messages: u64,
+    pub bytes: u64,
+    pub counts: BTreeMap<Channel, crate::keep::Counts>,
+}
+
+/// A flight record being written.
+pub struct FlightRecorder {
+    opts: Options,
+    ctx: Arc<Context>,
+    json: BTreeMap<Channel, Arc<RawChannel>>,
+    image: foxglove::Channel<RawImage>,
+    overlay: foxglove::Channel<ImageAnnotations>,
+    file: Option<McapWriterHandle<CountingFile>>,
+    part: u32,
+    parts: Vec<PathBuf>,
+    len: Arc<AtomicU64>,
+    closed_bytes: u64,
+    messages: u64,
+    flushed_messages: u64,
+    status_seq: u64,
+    metadata: BTreeMap<String, String>,
+    keeper: Keeper,
+    frame_size: Option<(u32, u32)>,
+    /// Estimates whose frame is not recorded yet (their overlay waits for its image).
+    waiting: std::collections::VecDeque<CableObservationMsg>,
+    buf: Vec<u8>,
+    live: Option<WebSocketServerHandle>,
+}
+
+fn unix_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+impl FlightRecorder {
+    /// Starts a record at `opts.path`; when that file exists (a restarted recorder, a second dive to
+    /// the same record), at its first part that does not. `metadata` goes into every part
+    /// (`cabletrack` metadata record), with the part's number and start time.
+    pub fn create(
+        opts: Options,
+        metadata: BTreeMap<String, String>,
+    ) -> Result<FlightRecorder, RecordError> {
+        if opts.frame_every == 0 || opts.rotate_bytes == 0 || opts.chunk_bytes == 0 {
+            return Err(RecordError::Option(format!(
+                "frame_every ({}), rotate_bytes ({}) and chunk_bytes ({}) must be at least 1",
+                opts.frame_every, opts.rotate_bytes, opts.chunk_bytes
+            )));
+        }
+        let ctx = Context::new();
+        let mut json = BTreeMap::new();
+        for c in Channel::ALL {
+            let Some(schema) = c.json_schema() else {
+                continue;
+            };
+            let channel = ctx
+                .channel_builder(c.topic())
+                .message_encoding("json")
+                .schema(Schema::new(
+                    c.schema_name(),
+                    "jsonschema",
+                    schema.to_string().into_bytes(),
+                ))
+                .build_raw()
+                .map_err(|source| RecordError::Channel {
+                    topic: c.topic(),
+                    source,
+                })?;
+            json.insert(c, channel);
+        }
+        let image = ctx
+            .channel_builder(Channel::Image.topic())
+            .build::<RawImage>();
+        let overlay = ctx
+            .channel_builder(Channel::Annotation.topic())
+            .build::<ImageAnnotations>();
+        let first = (0u32..)
+            .find(|&k| !part_path(&opts.path, k).exists())
+            .unwrap_or(0);
+        if first > 0 {
+            tracing::info!(
+                path = %opts.path.display(),
+                part = first,
+                "the record exists: continuing it with a new part"
+            );
+        }
+        let mut rec = FlightRecorder {
+            keeper: Keeper::new(opts.frame_every),
+            opts,
+            ctx,
+            json,
+            image,
+            overlay,
+            file: None,
+            part: first,
+            parts: Vec::new(),
+            len: Arc::new(AtomicU64::new(0)),
+            closed_bytes: 0,
+            messages: 0,
+            flushed_messages: 0,
+            status_seq: 0,
+            metadata,
+            frame_size: None,
+            waiting: std::collections::VecDeque::new(),
+            buf: Vec::with_capacity(512),
+            live: None,
+        };
+        rec.file = Some(rec.open_part()?);
+        Ok(rec)
+    }
+
+    fn write_options(&self) -> McapWriteOptions {
+        McapWriteOptions::new()
+            .compression(Some(McapCompression::Zstd))
+            .compression_level(self.opts.zstd_level)
+            // zstd's own worker threads would be hidden load on a 2-core vehicle computer.
+            .compression_threads(0)
+            .chunk_size(Some(self.opts.chunk_bytes))
+    }
+
+    fn open_part(&mut self) -> Result<McapWriterHandle<CountingFile>, RecordError> {
+        let path = part_path(&self.opts.path, self.part);
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|source| RecordError::Create {
+                path: path.clone(),
+                source,
+            })?;
+        }
+        let file = File::create_new(&path).map_err(|source| RecordError::Create {
+            path: path.clone(),
+            source,
+        })?;
+        self.len = Arc::new(AtomicU64::new(0));
+        let counting = CountingFile {
+            inner: BufWriter::with_capacity(256 << 10, file),
+            pos: 0,
+            len: Arc::clone(&self.len),
+        };
+        let handle = self
+            .ctx
+            .mcap_writer_with_options(self.write_options())
+            .create(counting)
+            .map_err(|source| RecordError::Write {
+                path: path.clone(),
+                source,
+            })?;
+        let mut meta = self.metadata.clone();
+        meta.insert("part".into(), self.part.to_string());
+        meta.insert("part_started_unix_ns".into(), unix_ns().to_string());
+        meta.insert("frame_every".into(), self.opts.frame_every.to_string());
+        handle
+            .write_metadata("cabletrack", meta)
+            .map_err(|source| RecordError::Write {
+                path: path.clone(),
+                source,
+            })?;
+        tracing::info!(path = %path.display(), part = self.part, "recording");
+        self.parts.push(path);
+        Ok(handle)
+    }
+
+    fn path(&self) -> PathBuf {
+        self.parts.last().cloned().unwrap_or_default()
+    }
+
+    /// Serves the record's channels live on `addr` (a viewer connects with the foxglove WebSocket
+    /// protocol); returns the port (`addr`'s, or the one chosen for port 0).
+    pub fn serve_live(&mut self, addr: SocketAddr) -> Result<u16, RecordError> {
+        let server = self
+            .ctx
+            .websocket_server()
+            .name("cabletrack flight recorder")
+            .bind(addr.ip().to_string(), addr.port())
+            .start_blocking()
+            .map_err(|source| RecordError::Live { addr, source })?;
+        let port = server.port();
+        self.live = Some(server);
+        Ok(port)
+    }
+
+    fn log_json<T: serde::Serialize>(&mut self, channel: Channel, form: &T, log_time: u64) {
+        self.buf.clear();
+        // Serialising these plain structs into a Vec cannot fail.
+        if serde_json::to_writer(&mut self.buf, form).is_ok()
+            && let Some(ch) = self.json.get(&channel)
+        {
+            ch.log_with_meta(&self.buf, PartialMetadata::with_log_time(log_time));
+            self.messages += 1;
+        }
+    }
+
+    pub fn state(&mut self, m: &VehicleStateMsg) {
+        if let Keep::Write { log_time } = self.keeper.stamped(Channel::VehicleState, &m.stamp) {
+            self.log_json(
+                Channel::VehicleState,
+                &json::VehicleStateJson::from(m),
+                log_time,
+            );
+        }
+    }
+
+    /// A camera frame: its header, and its image unless decimated.
+    pub fn frame(&mut self, header: &CameraFrameHeader, pixels: &[u8]) {
+        let Keep::Write { log_time } = self.keeper.stamped(Channel::FrameHeader, &header.stamp)
+        else {
+            return;
+        };
+        self.log_json(
+            Channel::FrameHeader,
+            &json::FrameHeaderJson::from(header),
+            log_time,
+        );
+        let raw = image::raw_image(header, pixels);
+        if self.keeper.image(&header.stamp, raw.is_some())
+            && let Some(raw) = raw
+        {
+            self.frame_size = Some((header.width, header.height));
+            self.image.log_with_time(&raw, log_time);
+            self.messages += 1;
+        }
+        for o in std::mem::take(&mut self.waiting) {
+            self.draw(&o);
+        }
+    }
+
+    /// Perception's overlay of `o`, drawn once its frame's image is written.
+    fn draw(&mut self, o: &CableObservationMsg) {
+        match self.keeper.overlay(&o.stamp) {
+            Overlay::Draw => {
+                if let Some((w, h)) = self.frame_size {
+                    self.overlay
+                        .log_with_time(&image::estimate_overlay(o, w, h), o.stamp.time_ns);
+                    self.messages += 1;
+                }
+            }
+            Overlay::Later => {
+                // A few steps of slack; an estimate whose frame never comes is given up.
+                if self.waiting.len() >= 64 {
+                    self.waiting.pop_front();
+                }
+                self.waiting.push_back(*o);
+            }
+            Overlay::Never => {}
+        }
+    }
+
+    /// Perception's estimate, and its overlay when its frame's image was recorded.
+    pub fn observation(&mut self, m: &CableObservationMsg) {
+        let Keep::Write { log_time } = self.keeper.stamped(Channel::Observation, &m.stamp) else {
+            return;
+        };
+        self.log_json(
+            Channel::Observation,
+            &json::CableObservationJson::from(m),
+            log_time,
+        );
+        self.draw(m);
+    }
+
+    pub fn command(&mut self, dof: CommandDof, m: &DofCommand) {
+        let c = dof.channel();
+        if let Keep::Write { log_time } = self.keeper.stamped(c, &m.stamp) {
+            self.log_json(c, &json::CommandJson::from(m), log_time);
+        }
+    }
+
+    pub fn setpoints(&mut self, m: &ThrusterSetpoints) {
+        if let Keep::Write { log_time } = self.keeper.stamped(Channel::Setpoints, &m.stamp) {
+            self.log_json(Channel::Setpoints, &json::SetpointsJson::from(m), log_time);
+        }
+    }
+
+    pub fn learning(&mut self, dof: config::Dof, m: &LearningStats) {
+        let c = match dof {
+            config::Dof::Sway => Channel::SwayLearning,
+            config::Dof::Yaw => Channel::YawLearning,
+        };
+        if let Keep::Write { log_time } = self.keeper.stamped(c, &m.stamp) {
+            self.log_json(c, &json::LearningJson::from(m), log_time);
+        }
+    }
+
+    pub fn event(&mut self, e: &SupervisorEvent) {
+        if let Keep::Write { log_time } = self.keeper.unstamped(Channel::Events, e.seq) {
+            self.log_json(Channel::Events, &json::EventJson::from(e), log_time);
+        }
+    }
+
+    /// Bytes written so far, every part.
+    pub fn bytes(&self) -> u64 {
+        self.closed_bytes + self.len.load(Ordering::Relaxed)
+    }
+
+    pub fn messages(&self) -> u64 {
+        self.messages
+    }
+
+    pub fn keeper(&self) -> &Keeper {
+        &self.keeper
+    }
+
+    /// Closes the open chunk and pushes everything to the file: a SIGKILL after this keeps it all.
+    pub fn flush(&mut self) -> Result<(), RecordError> {
+        if let Some(file) = &self.file {
+            file.flush().map_err(|source| RecordError::Write {
+                path: self.path(),
+                source,
+            })?;
+        }
+        self.flushed_messages = self.messages;
+        Ok(())
+    }
+
+    /// Starts the next part when this one has reached its size limit; `true` when it did.
+    pub fn rotate_if_due(&mut self) -> Result<bool, RecordError> {
+        if self.len.load(Ordering::Relaxed) < self.opts.rotate_bytes {
+            return Ok(false);
+        }
+        let old_path = self.path();
+        let old_len = Arc::clone(&self.len);
+        self.part += 1;
+        // The new sink first, then the old one closed: nothing is logged in between (one thread),
+        // so every message lands in exactly one part.
+        let new = self.open_part()?;
+        if let Some(old) = self.file.replace(new) {
+            old.close().map_err(|source| RecordError::Write {
+                path: old_path.clone(),
+                source,
+            })?;
+        }
+        let old_len = old_len.load(Ordering::Relaxed);
+        self.closed_bytes += old_len;
+        self.flushed_messages = self.messages;
+        tracing::info!(closed = %old_path.display(), bytes = old_len, "rotated");
+        Ok(true)
+    }
+
+    /// The recorder's progress now, also written to the record's status channel.
+    pub fn status(&mut self) -> RecorderStatus {
+        self.status_seq += 1;
+        let mut s = RecorderStatus {
+            seq: self.status_seq,
+            wall_time_ns: unix_ns(),
+            messages: self.messages,
+            flushed_messages: self.flushed_messages,
+            bytes: self.bytes(),
+            holes: self.keeper.holes(),
+            repeats: self.keeper.repeats(),
+            part: self.part,
+            _reserved: 0,
+        };
+        if let Keep::Write { log_time } = self.keeper.unstamped(Channel::Status, s.seq) {
+            self.log_json(Channel::Status, &json::StatusJson::from(&s), log_time);
+            s.messages = self.messages;
+        }
+        s
+    }
+
+    /// Writes the totals as the `recorder` metadata record, closes the file with its summary and
+    /// index, and stops the live view.
+    pub fn close(mut self) -> Result<Totals, RecordError> {
+        self.keeper.finish();
+        let counts = self.keeper.counts().clone();
+        if let Some(file) = self.file.take() {
+            let path = self.path();
+            let mut meta = BTreeMap::new();
+            meta.insert("messages".to_owned(), self.messages.to_string());
+            meta.insert("closed_unix_ns".to_owned(), unix_ns().to_string());
+            for (c, n) in &counts {
+                meta.insert(
+                    c.topic().to_owned(),
+                    format!(
+                        "written {} repeats {} holes {} decimated {}",
+                        n.written, n.repeats, n.holes, n.decimated
+                    ),
+                );
+            }
+            file.write_metadata("recorder", meta)
+                .map_err(|source| RecordError::Write {
+                    path: path.clone(),
+                    source,
+                })?;
+            let mut out = file
+                .close()
+                .map_err(|source| RecordError::Write { path, source })?;
+            let _ = out.flush();
+            let _ = out.inner.get_ref().sync_all();
+        }
+        if let Some(live) = self.live.take() {
+            live.stop().wait_blocking();
+        }
+        Ok(Totals {
+            parts: self.parts.clone(),
+            messages: self.messages,
+            bytes: self.bytes(),
+            counts,
+        })
+    }
+}
+
+/// The record's parts that exist, in order: `path`, then `part_path(path, 1)`, ... up to the first
+/// missing one.
+pub fn parts(path: &Path) -> Vec<PathBuf> {
+    (0u32..)
+        .map(|k| part_path(path, k))
+        .take_while(|p| p.exists())
+        .collect()
+}

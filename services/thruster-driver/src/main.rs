@@ -1,0 +1,116 @@
+//! `thruster-driver`: on the vehicle endpoint, the only process that drives the thrusters. It owns
+//! the thruster sink, writes the allocator's fresh setpoints to it, and stops the thrusters (all 0,
+//! logged with the cause) when no fresh setpoints come within the deadline, when the allocator's
+//! process dies, and on SIGINT/SIGTERM. The core is the library's [`Driver`].
+
+use adapters::ThrusterSink;
+use adapters::record::{NullSink, RecordSink};
+use adapters::twin::TwinThrusterSink;
+use clap::Parser;
+use messages::{Endpoint, topics};
+use runtime::lockstep::{Screen, ScreenLimits};
+use runtime::{BadValues, CommonArgs, Runtime, Watch};
+use std::process::ExitCode;
+use std::time::Duration;
+use thruster_driver::{Driver, SinkSpec, Taken};
+
+#[derive(Parser)]
+#[command(
+    version,
+    about = "The vehicle's thruster driver: fresh setpoints to the thrusters, zero thrust when they stop, on shutdown and when the allocator dies."
+)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// The thruster sink: `twin` (the vehicle twin's thrusters), `record:FILE` (a file of setpoints
+    /// and stops with their times) or `null`.
+    #[arg(long, default_value = "twin", value_name = "twin|record:FILE|null")]
+    sink: SinkSpec,
+    /// Setpoints go stale, and the thrusters stop, once their step is older than this [default: two
+    /// sample periods].
+    #[arg(long, value_name = "MS")]
+    deadline_ms: Option<u64>,
+}
+
+/// The vehicle's thrusters.
+fn open_sink(rt: &Runtime, spec: &SinkSpec) -> anyhow::Result<Box<dyn ThrusterSink>> {
+    let thrusters = &rt.scenario().thrusters.thruster;
+    Ok(match spec {
+        SinkSpec::Twin => Box::new(TwinThrusterSink::open(rt.node(), thrusters.len())?),
+        SinkSpec::Record(path) => {
+            let names: Vec<String> = thrusters.iter().map(|t| t.name.clone()).collect();
+            Box::new(RecordSink::create(path, &names)?)
+        }
+        SinkSpec::Null => Box::new(NullSink::new(thrusters.len())?),
+    })
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    runtime::run("thruster-driver", &args.common, |rt| {
+        if rt.endpoint() != Endpoint::Vehicle {
+            anyhow::bail!(
+                "the thruster driver serves the `vehicle` endpoint; on `sim` the simulator reads the setpoint topic"
+            );
+        }
+        let period = rt.scenario().timing.sample_time_s;
+        let limits = ScreenLimits {
+            max_age: args
+                .deadline_ms
+                .map_or(2 * Duration::from_secs_f64(period), Duration::from_millis),
+            ..ScreenLimits::control(period)
+        };
+        // The thrusters first: a second driver stops here, before it touches anything.
+        let sink = open_sink(rt, &args.sink)?;
+        let setpoints = rt.inbox(&topics::THRUSTER_SETPOINTS)?;
+        let mut driver = Driver::new(sink, Screen::new(setpoints.service(), limits));
+        driver.start()?;
+        let deadline = driver.deadline();
+        tracing::info!(sink = %driver.sink().describe(), deadline_ms = deadline.as_millis() as u64, "thrusters at rest: waiting for setpoints");
+        let mut bad = BadValues::new(setpoints.service());
+        let clock = *rt.clock();
+        // How often the allocator's process is looked at.
+        let tick = deadline / 4;
+        let mut allocator_seen = false;
+        let served = rt.serve_watched(setpoints.listener(), deadline, tick, |wake| {
+            let now = clock.now_ns();
+            let died = matches!(wake, Watch::Input { publisher_died: true, .. });
+            for msg in setpoints.drain()? {
+                match driver.on_setpoints(&msg, now) {
+                    Ok(Taken::Written(applied)) => {
+                        bad.note(applied.fixes, msg.stamp.seq, now);
+                        if !allocator_seen {
+                            tracing::info!(seq = msg.stamp.seq, "setpoints arrive: driving the thrusters");
+                            allocator_seen = true;
+                        }
+                    }
+                    Ok(Taken::Repeat) | Ok(Taken::Refused(Some(_))) => {}
+                    Ok(Taken::Refused(None)) => {
+                        tracing::warn!(seq = msg.stamp.seq, "a stop on the setpoint topic refused: only the driver stops the thrusters")
+                    }
+                    // Keep serving: the next setpoints may get through; the deadline stops the thrusters.
+                    Err(e) => tracing::error!(seq = msg.stamp.seq, "cannot write the setpoints: {e}"),
+                }
+            }
+            if died || matches!(wake, Watch::Tick | Watch::Missed) {
+                let publishers = setpoints.publisher_processes(rt.node());
+                if publishers.alive.is_empty() && driver.allocator_gone()? {
+                    tracing::warn!(cause = "allocator_dead", dead = publishers.dead, "thrusters stopped: the allocator's process is gone");
+                    allocator_seen = false;
+                }
+            }
+            if driver.on_time(clock.now_ns())?.is_some() {
+                tracing::warn!(cause = "deadline", deadline_ms = deadline.as_millis() as u64, "thrusters stopped: no fresh setpoints within the deadline");
+            }
+            Ok(Some(driver.time_left(clock.now_ns()).map_or(tick, |t| t.min(tick))))
+        });
+        let closed = driver.shutdown();
+        match &closed {
+            Ok(()) => tracing::info!(cause = "shutdown", "thrusters stopped: the driver stops"),
+            Err(e) => tracing::error!("cannot stop the thrusters at shutdown: {e}"),
+        }
+        served?;
+        closed?;
+        Ok(())
+    })
+}

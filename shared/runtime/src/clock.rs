@@ -1,0 +1,133 @@
+//! The vehicle clock: the machine's monotonic clock (`CLOCK_MONOTONIC`), which no wall-clock
+//! setting, NTP or missing RTC ever steps. The vehicle camera stamps each step with it
+//! ([`messages::Stamp::clock_ns`]) and every consumer judges a stamp's age against it
+//! ([`crate::lockstep::Screen`]). 0 is never a reading: it marks an untimed stamp.
+//!
+//! A process's clock may be offset from the machine's by the number of milliseconds in the file named
+//! by `CABLETRACK_CLOCK_OFFSET_FILE`, read once at start: how the fault drill starts a service whose
+//! time base is stepped back (a camera with a clock of its own that restarted), without touching the
+//! machine's clock.
+
+use crate::RuntimeError;
+use std::path::Path;
+
+/// The environment variable naming the offset file (see the module docs).
+pub const OFFSET_FILE_ENV: &str = "CABLETRACK_CLOCK_OFFSET_FILE";
+
+/// The machine's monotonic clock in nanoseconds.
+pub fn monotonic_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime(2) writes one timespec; CLOCK_MONOTONIC always exists on Linux.
+    unsafe {
+        libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts);
+    }
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// A process's view of the vehicle clock: the monotonic clock plus a fixed offset.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct VehicleClock {
+    offset_ns: i64,
+}
+
+impl Default for VehicleClock {
+    fn default() -> Self {
+        Self::system()
+    }
+}
+
+impl VehicleClock {
+    /// The machine's clock, unchanged.
+    pub fn system() -> Self {
+        VehicleClock { offset_ns: 0 }
+    }
+
+    /// The machine's clock moved by `offset_ns` (negative: behind).
+    pub fn with_offset(offset_ns: i64) -> Self {
+        VehicleClock { offset_ns }
+    }
+
+    /// The clock of a process started now: offset by `CABLETRACK_CLOCK_OFFSET_FILE` if it is set
+    /// and the file exists (a missing file: no offset).
+    pub fn from_env() -> Result<Self, RuntimeError> {
+        match std::env::var_os(OFFSET_FILE_ENV) {
+            Some(path) => Self::from_file(Path::new(&path)),
+            None => Ok(Self::system()),
+        }
+    }
+
+    /// The clock offset by the milliseconds written in `path` (missing or empty: none).
+    pub fn from_file(path: &Path) -> Result<Self, RuntimeError> {
+        let text = match std::fs::read_to_string(path) {
+            Ok(t) => t,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Self::system()),
+            Err(e) => {
+                return Err(RuntimeError::Clock(format!(
+                    "{OFFSET_FILE_ENV}: cannot read {}: {e}",
+                    path.display()
+                )));
+            }
+        };
+        let text = text.trim();
+        if text.is_empty() {
+            return Ok(Self::system());
+        }
+        let ms: i64 = text.parse().map_err(|e| {
+            RuntimeError::Clock(format!(
+                "{OFFSET_FILE_ENV}: {} holds `{text}`, not a whole number of milliseconds: {e}",
+                path.display()
+            ))
+        })?;
+        Ok(Self::with_offset(ms.saturating_mul(1_000_000)))
+    }
+
+    pub fn offset_ns(&self) -> i64 {
+        self.offset_ns
+    }
+
+    /// Now on this clock (ns), never 0.
+    pub fn now_ns(&self) -> u64 {
+        let t = monotonic_ns() as i128 + self.offset_ns as i128;
+        t.clamp(1, u64::MAX as i128) as u64
+    }
+
+    /// A new epoch (a producer's session, [`messages::Stamp::epoch`]): a value a restarted process
+    /// does not repeat (drawn from the clock's reading and the process id), never 0.
+    pub fn new_epoch(&self) -> u32 {
+        let seed = config::derive_seed(self.now_ns(), &format!("epoch/{}", std::process::id()));
+        ((seed >> 32) as u32 ^ seed as u32).max(1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_clock_is_monotonic_and_its_offset_is_read_from_a_file() {
+        let clock = VehicleClock::system();
+        let a = clock.now_ns();
+        let b = clock.now_ns();
+        assert!(a > 0 && b >= a);
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("offset");
+        assert_eq!(
+            VehicleClock::from_file(&file).unwrap(),
+            VehicleClock::system(),
+            "no file: no offset"
+        );
+        std::fs::write(&file, "-1500\n").unwrap();
+        let behind = VehicleClock::from_file(&file).unwrap();
+        assert_eq!(behind.offset_ns(), -1_500_000_000);
+        let (now, then) = (clock.now_ns(), behind.now_ns());
+        assert!(now > then && now - then >= 1_500_000_000 - 1_000_000);
+        std::fs::write(&file, "soon").unwrap();
+        let err = VehicleClock::from_file(&file).unwrap_err().to_string();
+        assert!(err.contains("soon") && err.contains("offset"), "{err}");
+        assert_ne!(clock.new_epoch(), 0);
+        assert_ne!(clock.new_epoch(), clock.new_epoch());
+    }
+}
