@@ -20,9 +20,11 @@ pub struct AllowList {
 }
 
 impl AllowList {
-    /// The telemetry of `endpoint` (state, observations, setpoints, learning reports, heartbeats),
-    /// the camera frames only when `frames`, and the shore's mission commands. Never the per-DOF
-    /// commands or the hardware topics: the vehicle's control loop stays on the vehicle.
+    /// The telemetry of `endpoint` (state, observations, learning reports, heartbeats), the camera
+    /// frames only when `frames`, and the shore's mission commands. Never the per-DOF commands, the
+    /// thruster setpoints or the hardware topics: the vehicle's control loop stays on the vehicle. A
+    /// bridged service gets a publisher of the link on this host, so a bridged actuator topic could be
+    /// driven from the other host (and the setpoints take one publisher only: the allocator's).
     pub fn new(endpoint: Endpoint, frames: bool) -> AllowList {
         let mut up = vec![
             (
@@ -32,10 +34,6 @@ impl AllowList {
             (
                 topics::CABLE_OBSERVATION.service_name(endpoint),
                 topics::CABLE_OBSERVATION.qos,
-            ),
-            (
-                topics::THRUSTER_SETPOINTS.service_name(endpoint),
-                topics::THRUSTER_SETPOINTS.qos,
             ),
             (
                 topics::SWAY_LEARNING.service_name(endpoint),
@@ -190,6 +188,7 @@ mod tests {
         }
         for name in [
             "cabletrack/vehicle/command/yaw",
+            "cabletrack/vehicle/thruster_setpoints",
             "cabletrack/vehicle/camera_frame",
             "cabletrack/twin/thrusters",
             "cabletrack/sim/cable_observation",
