@@ -109,7 +109,7 @@ pub struct Report {
     pub received_on_shore: usize,
     /// Added by the link: arrival on shore minus arrival on the vehicle, same step.
     pub latency_ms: Latency,
-    /// Steps the vehicle's allocator completed without every command, or skipped.
+    /// Steps the vehicle missed while the shore watched (see [`steps_missed`]).
     pub vehicle_steps_missed: u64,
     /// From the link's return to the first telemetry on shore (none: no cut, or never back).
     pub shore_back_after_s: Option<f64>,
@@ -171,6 +171,30 @@ pub fn back_after(shore: &[Arrival], link_up_ns: u64) -> Option<f64> {
         .map(|t| (t - link_up_ns) as f64 / 1e9)
 }
 
+/// Steps the vehicle missed while the shore watched (from the first to the last observation the shore
+/// received): steps whose setpoints lacked a command, and step numbers the setpoints skipped.
+/// `steps` are the vehicle's setpoints in order, as (seq, commands missing). Start-up and the stop
+/// are outside the window: the link is not running then.
+pub fn steps_missed(steps: &[(u64, u64)], shore: &[Arrival]) -> u64 {
+    let (Some(first), Some(last)) = (
+        shore.iter().map(|a| a.seq).min(),
+        shore.iter().map(|a| a.seq).max(),
+    ) else {
+        return 0;
+    };
+    let inside: Vec<(u64, u64)> = steps
+        .iter()
+        .copied()
+        .filter(|(seq, _)| (first..=last).contains(seq))
+        .collect();
+    let incomplete = inside.iter().filter(|(_, m)| *m != 0).count() as u64;
+    let skipped: u64 = inside
+        .windows(2)
+        .map(|w| w[1].0.saturating_sub(w[0].0 + 1))
+        .sum();
+    incomplete + skipped
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -199,6 +223,16 @@ mod tests {
             assert!(!allow.admits(name), "{name}");
         }
         assert!(AllowList::new(Endpoint::Vehicle, true).admits("cabletrack/vehicle/camera_frame"));
+    }
+
+    #[test]
+    fn steps_are_missed_only_inside_the_shores_watch() {
+        let shore = [10, 11, 14].map(|seq| Arrival { seq, at_ns: 0 });
+        // Before the watch: incomplete and skipped steps that do not count.
+        let steps = [(1, 2), (5, 0), (10, 0), (11, 1), (13, 0), (14, 0), (20, 3)];
+        // Step 11 lacked a command, step 12 was skipped.
+        assert_eq!(steps_missed(&steps, &shore), 2);
+        assert_eq!(steps_missed(&steps, &[]), 0);
     }
 
     #[test]

@@ -434,7 +434,7 @@ fn operator(seconds: f64, record: &std::path::Path, iox: &Iox) -> Result<()> {
     if let Some(e) = failure {
         return Err(e);
     }
-    mission.send(MissionCommand::new(1, now_ns(), Mission::Stop))?;
+    let stops = stop_until_silent(&mission, &observations)?;
     let services = outside_services(&cfg, &AllowList::new(endpoint, false))?;
     line(
         &mut out,
@@ -444,12 +444,56 @@ fn operator(seconds: f64, record: &std::path::Path, iox: &Iox) -> Result<()> {
             "outside_messages": outside_seen,
             "outside_services": services,
             "stop_sent_ns": now_ns(),
+            "stops_sent": stops,
         }}),
     )?;
     eprintln!(
         "shore-link operator: {received} observations, {reports} learning reports, {outside_seen} messages and {services:?} services outside the allow-list"
     );
     Ok(())
+}
+
+/// How long the operator keeps sending its stop while the vehicle's observations still arrive.
+const STOP_FOR: Duration = Duration::from_secs(30);
+/// The observations' silence that tells the operator the vehicle's mesh has stopped.
+const SILENT_FOR: Duration = Duration::from_secs(1);
+
+/// Sends the stop, and again every [`SILENT_FOR`] while observations still arrive (a command sent as
+/// the link comes back, or before the link has bridged the mission topic again, can be lost: zenoh
+/// does not replay it), until the vehicle falls silent or [`STOP_FOR`] has passed. Returns how many
+/// stops were sent.
+fn stop_until_silent(
+    mission: &Outbox<MissionCommand>,
+    observations: &Inbox<messages::CableObservationMsg>,
+) -> Result<u64> {
+    let waitset = WaitSetBuilder::new()
+        .create::<ipc::Service>()
+        .map_err(|e| anyhow!("cannot create a WaitSet: {e:?}"))?;
+    let _obs = waitset
+        .attach_notification(observations.listener())
+        .map_err(|e| anyhow!("{e:?}"))?;
+    let start = Instant::now();
+    let mut sent = 0u64;
+    while start.elapsed() < STOP_FOR {
+        sent += 1;
+        mission.send(MissionCommand::new(sent, now_ns(), Mission::Stop))?;
+        let window = Instant::now();
+        let mut heard = false;
+        while window.elapsed() < SILENT_FOR {
+            waitset
+                .wait_and_process_once_with_timeout(
+                    |_| CallbackProgression::Continue,
+                    SILENT_FOR.saturating_sub(window.elapsed()),
+                )
+                .map_err(|e| anyhow!("waiting: {e:?}"))?;
+            let _ = observations.listener().try_wait(|_| {});
+            heard |= !observations.drain()?.is_empty();
+        }
+        if !heard {
+            break;
+        }
+    }
+    Ok(sent)
 }
 
 /// The services on this host that are neither allowed across nor opened by the operator itself: a
@@ -508,7 +552,6 @@ fn report(
     let (v, s) = (read(vehicle)?, read(shore)?);
     let (va, sa) = (arrivals(&v), arrivals(&s));
     let (sent, received_on_shore, latency_ms) = shore_link::link_figures(&va, &sa);
-    // A step is missed when the allocator lacked a command for it, or when its number was skipped.
     let steps: Vec<(u64, u64)> = v
         .iter()
         .filter_map(|l| {
@@ -516,11 +559,6 @@ fn report(
             Some((s.get("seq")?.as_u64()?, s.get("missing")?.as_u64()?))
         })
         .collect();
-    let incomplete = steps.iter().filter(|(_, m)| *m != 0).count() as u64;
-    let skipped: u64 = steps
-        .windows(2)
-        .map(|w| w[1].0.saturating_sub(w[0].0 + 1))
-        .sum();
     let summary = s
         .iter()
         .find_map(|l| l.get("summary").cloned())
@@ -533,7 +571,7 @@ fn report(
         sent,
         received_on_shore,
         latency_ms,
-        vehicle_steps_missed: incomplete + skipped,
+        vehicle_steps_missed: shore_link::steps_missed(&steps, &sa),
         shore_back_after_s: link_up_ns.and_then(|t| shore_link::back_after(&sa, t)),
         outside_allow_list_seen: outside,
         stop_obeyed,
