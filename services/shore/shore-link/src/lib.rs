@@ -5,6 +5,7 @@
 use messages::Qos;
 use messages::topics::{self, Endpoint, health, shore};
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 /// The services that cross the link: telemetry up from the vehicle, commands down from the shore.
 /// The tunnel's filter is one predicate for both directions, so the two directions are kept apart
@@ -116,6 +117,52 @@ pub struct Report {
     /// Messages or services outside the allow-list seen on the shore.
     pub outside_allow_list_seen: u64,
     pub stop_obeyed: bool,
+    /// Per topic received on shore: messages and payload bytes per second of the watch.
+    pub topics: BTreeMap<String, TopicRate>,
+    /// Everything the vehicle's network interface sent per second of the watch (payloads, zenoh's
+    /// framing and keep-alives, TCP/IP headers).
+    pub link_bytes_per_s: Option<f64>,
+}
+
+/// What the operator received of one topic.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TopicTraffic {
+    pub messages: u64,
+    pub bytes: u64,
+}
+
+impl TopicTraffic {
+    pub fn add(&mut self, bytes: usize) {
+        self.messages += 1;
+        self.bytes += bytes as u64;
+    }
+}
+
+/// One topic's rate on shore.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TopicRate {
+    pub per_s: f64,
+    pub bytes_per_s: f64,
+}
+
+/// The per-topic rates from the operator's summary (`topics`, `watched_s`).
+pub fn rates(summary: &serde_json::Value) -> BTreeMap<String, TopicRate> {
+    let watched = summary["watched_s"].as_f64().filter(|s| *s > 0.0);
+    let topics: BTreeMap<String, TopicTraffic> =
+        serde_json::from_value(summary["topics"].clone()).unwrap_or_default();
+    match watched {
+        Some(s) => topics
+            .into_iter()
+            .map(|(name, t)| {
+                let rate = TopicRate {
+                    per_s: t.messages as f64 / s,
+                    bytes_per_s: t.bytes as f64 / s,
+                };
+                (name, rate)
+            })
+            .collect(),
+        None => BTreeMap::new(),
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

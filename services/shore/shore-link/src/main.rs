@@ -18,8 +18,9 @@ use iceoryx2_integrations_zenoh_link_carrier::ZenohCarrier;
 use iceoryx2_link::Link;
 use iceoryx2_link_tunnel::Tunnel;
 use messages::topics::{self, Endpoint, health, shore};
-use messages::{Inbox, Mission, MissionCommand, Outbox, Topic};
-use shore_link::{AllowList, Arrival, Report, Side};
+use messages::{FrameInbox, Inbox, Mission, MissionCommand, Outbox, Topic};
+use shore_link::{AllowList, Arrival, Report, Side, TopicTraffic};
+use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -88,6 +89,9 @@ enum Command {
         /// JSON lines: {"arrival": {...}} per observation, then one {"summary": {...}}.
         #[arg(long)]
         record: PathBuf,
+        /// Count the camera frames that cross too (the link's `--frames`).
+        #[arg(long)]
+        frames: bool,
         #[command(flatten)]
         iox: Iox,
     },
@@ -127,8 +131,9 @@ fn main() -> ExitCode {
         Command::Operator {
             seconds,
             record,
+            frames,
             iox,
-        } => operator(seconds, &record, &iox),
+        } => operator(seconds, &record, frames, &iox),
         Command::Now => {
             println!("{}", now_ns());
             Ok(())
@@ -361,7 +366,7 @@ impl Recorder {
 }
 
 /// The operator's side of the demo.
-fn operator(seconds: f64, record: &std::path::Path, iox: &Iox) -> Result<()> {
+fn operator(seconds: f64, record: &std::path::Path, frames: bool, iox: &Iox) -> Result<()> {
     let cfg = iox_config(iox)?;
     let node = node(&cfg, "operator")?;
     let endpoint = iox.endpoint;
@@ -370,6 +375,12 @@ fn operator(seconds: f64, record: &std::path::Path, iox: &Iox) -> Result<()> {
         Inbox::open(&node, endpoint, &topics::SWAY_LEARNING)?,
         Inbox::open(&node, endpoint, &topics::YAW_LEARNING)?,
     ];
+    let camera = match frames {
+        true => Some(FrameInbox::open(&node, endpoint)?),
+        false => None,
+    };
+    // Per topic: messages and payload bytes received while watching.
+    let mut traffic: BTreeMap<&str, TopicTraffic> = BTreeMap::new();
     // Topics the allow-list keeps on the vehicle: whatever arrives here crossed where it must not.
     let outside: Vec<Inbox<messages::DofCommand>> = [
         topics::SURGE_COMMAND,
@@ -394,9 +405,18 @@ fn operator(seconds: f64, record: &std::path::Path, iox: &Iox) -> Result<()> {
     let _obs = waitset
         .attach_notification(observations.listener())
         .map_err(|e| anyhow!("{e:?}"))?;
+    let _frames = match &camera {
+        Some(c) => Some(
+            waitset
+                .attach_notification(c.listener())
+                .map_err(|e| anyhow!("{e:?}"))?,
+        ),
+        None => None,
+    };
     let _tick = waitset
         .attach_interval(Duration::from_millis(200))
         .map_err(|e| anyhow!("{e:?}"))?;
+    let rx_start = received_bytes();
     let start = Instant::now();
     let end = Duration::from_secs_f64(seconds.max(0.0));
     let (mut received, mut outside_seen, mut reports) = (0u64, 0u64, 0u64);
@@ -405,13 +425,37 @@ fn operator(seconds: f64, record: &std::path::Path, iox: &Iox) -> Result<()> {
         let _ = observations.listener().try_wait(|_| {});
         for o in observations.drain()? {
             received += 1;
+            traffic
+                .entry(topics::CABLE_OBSERVATION.name)
+                .or_default()
+                .add(std::mem::size_of_val(&o));
             line(
                 out,
                 &serde_json::json!({ "arrival": Arrival { seq: o.stamp.seq, at_ns: now_ns() } }),
             )?;
         }
-        for l in &learning {
-            reports += l.drain()?.len() as u64;
+        for (l, topic) in learning
+            .iter()
+            .zip([topics::SWAY_LEARNING.name, topics::YAW_LEARNING.name])
+        {
+            for r in l.drain()? {
+                reports += 1;
+                traffic
+                    .entry(topic)
+                    .or_default()
+                    .add(std::mem::size_of_val(&r));
+            }
+        }
+        if let Some(c) = &camera {
+            let _ = c.listener().try_wait(|_| {});
+            while let Some(bytes) =
+                c.receive_with(|h, image| std::mem::size_of_val(h) + image.len())?
+            {
+                traffic
+                    .entry(topics::CAMERA_FRAME.name)
+                    .or_default()
+                    .add(bytes);
+            }
         }
         for o in &outside {
             outside_seen += o.drain()?.len() as u64;
@@ -434,8 +478,12 @@ fn operator(seconds: f64, record: &std::path::Path, iox: &Iox) -> Result<()> {
     if let Some(e) = failure {
         return Err(e);
     }
+    let watched = start.elapsed();
+    let link_bytes = received_bytes()
+        .zip(rx_start)
+        .map(|(b, a)| b.saturating_sub(a));
     let stops = stop_until_silent(&mission, &observations)?;
-    let services = outside_services(&cfg, &AllowList::new(endpoint, false))?;
+    let services = outside_services(&cfg, &AllowList::new(endpoint, frames))?;
     line(
         &mut out,
         &serde_json::json!({ "summary": {
@@ -443,6 +491,9 @@ fn operator(seconds: f64, record: &std::path::Path, iox: &Iox) -> Result<()> {
             "learning_reports": reports,
             "outside_messages": outside_seen,
             "outside_services": services,
+            "watched_s": watched.as_secs_f64(),
+            "link_bytes": link_bytes,
+            "topics": traffic,
             "stop_sent_ns": now_ns(),
             "stops_sent": stops,
         }}),
@@ -451,6 +502,21 @@ fn operator(seconds: f64, record: &std::path::Path, iox: &Iox) -> Result<()> {
         "shore-link operator: {received} observations, {reports} learning reports, {outside_seen} messages and {services:?} services outside the allow-list"
     );
     Ok(())
+}
+
+/// Bytes received so far by this host's network interfaces, loopback aside (the link's traffic on
+/// the demo's shore host, which has one veth end and nothing else); `None` where /sys cannot say.
+fn received_bytes() -> Option<u64> {
+    let mut total = 0;
+    for entry in std::fs::read_dir("/sys/class/net").ok()? {
+        let path = entry.ok()?.path();
+        if path.file_name().is_some_and(|n| n == "lo") {
+            continue;
+        }
+        let text = std::fs::read_to_string(path.join("statistics/rx_bytes")).ok()?;
+        total += text.trim().parse::<u64>().ok()?;
+    }
+    Some(total)
 }
 
 /// How long the operator keeps sending its stop while the vehicle's observations still arrive.
@@ -575,6 +641,11 @@ fn report(
         shore_back_after_s: link_up_ns.and_then(|t| shore_link::back_after(&sa, t)),
         outside_allow_list_seen: outside,
         stop_obeyed,
+        topics: shore_link::rates(&summary),
+        link_bytes_per_s: summary["link_bytes"]
+            .as_u64()
+            .zip(summary["watched_s"].as_f64())
+            .map(|(b, s)| b as f64 / s),
     };
     std::fs::write(json, serde_json::to_string_pretty(&report)? + "\n")
         .with_context(|| format!("writing {}", json.display()))?;
