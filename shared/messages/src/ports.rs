@@ -572,8 +572,8 @@ impl FrameInbox {
 }
 
 /// A recording subscriber of one topic: the topic's [`crate::Qos::recorder_buffer`], and no
-/// listener, so a publish wakes nobody more than without it (the recorder wakes once per step on a
-/// listener of its own choosing, see [`open_listener`], and drains its taps then). When it falls
+/// listener, so a publish wakes nobody more than without it (the recorder drains its taps on a timer
+/// of its own). When it falls
 /// behind by more than its buffer, the publisher overwrites its oldest samples: it never blocks.
 pub struct Tap<P: Payload> {
     service: String,

@@ -15,8 +15,8 @@
 //!   complete chunk.
 //!
 //! The process (`main.rs`) subscribes to every topic through `messages::Tap`s (the recorder's own
-//! buffer, no listener: a publisher is never slowed or blocked by it), wakes once per step on the
-//! thruster setpoints' event, and drains every tap then.
+//! buffer, no listener: a publisher is never slowed or blocked by it), and drains every tap every
+//! 10 ms (and on the supervisor's events).
 
 pub mod channels;
 pub mod figure;
