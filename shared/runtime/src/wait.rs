@@ -116,17 +116,16 @@ pub enum Watch {
     Input { data: bool, publisher_died: bool },
     /// Nothing was notified on the watched input for its deadline (iceoryx2's deadline attachment).
     Missed,
-    /// The periodic tick, or the time the handler asked to be woken at.
+    /// The time the handler asked to be woken at.
     Tick,
 }
 
 /// Serves one watched input (a watchdog): wakes when it is notified, when it was not notified for
-/// `deadline`, every `tick`, and at the latest after the time `on_wake` returns; until `on_wake`
-/// returns `None` or a termination signal arrives.
+/// `deadline`, and at the latest after the time `on_wake` returns; until `on_wake` returns `None`
+/// or a termination signal arrives.
 pub(crate) fn serve_watched(
     input: &Listener<ipc::Service>,
     deadline: Duration,
-    tick: Duration,
     mut on_wake: impl FnMut(Watch) -> anyhow::Result<Option<Duration>>,
 ) -> anyhow::Result<Stopped> {
     let waitset = WaitSetBuilder::new()
@@ -135,9 +134,6 @@ pub(crate) fn serve_watched(
     let watched = waitset.attach_deadline(input, deadline).map_err(|e| {
         anyhow::anyhow!("cannot watch a listener with a {deadline:?} deadline: {e:?}")
     })?;
-    let ticker = waitset
-        .attach_interval(tick)
-        .map_err(|e| anyhow::anyhow!("cannot attach a {tick:?} interval: {e:?}"))?;
     // What arrived before the watch began (a topic's history) is looked at first.
     let mut next = match on_wake(Watch::Input {
         data: true,
@@ -147,14 +143,12 @@ pub(crate) fn serve_watched(
         None => return Ok(Stopped::Done),
     };
     loop {
-        let (mut notified, mut missed, mut ticked) = (false, false, false);
+        let (mut notified, mut missed) = (false, false);
         let mut handle = |id: WaitSetAttachmentId<ipc::Service>| {
             if id.has_missed_deadline(&watched) {
                 missed = true;
             } else if id.has_event_from(&watched) {
                 notified = true;
-            } else if id.has_event_from(&ticker) {
-                ticked = true;
             }
             CallbackProgression::Continue
         };
@@ -176,7 +170,6 @@ pub(crate) fn serve_watched(
         } else if missed {
             Watch::Missed
         } else {
-            let _ = ticked;
             Watch::Tick
         };
         match on_wake(wake)? {
