@@ -80,6 +80,9 @@ fn main() -> ExitCode {
         // refused: the jump is bounded (`lockstep::MAX_UNTIMED_JUMP` steps, many trials).
         let limits = ScreenLimits::control(rt.scenario().timing.sample_time_s);
         let untimed = |s: &messages::Stamp| messages::Stamp { clock_ns: 0, ..*s };
+        let floors = inboxes
+            .each_ref()
+            .map(|(dof, _)| monitor::ReturnFloor::of(*dof, rt.scenario(), rt.learning()));
         let mut screens = inboxes
             .each_ref()
             .map(|(_, inbox)| Screen::new(inbox.service(), limits));
@@ -116,7 +119,7 @@ fn main() -> ExitCode {
                     out.write_all(b"\n")?;
                 }
             }
-            for ((dof, inbox), screen) in inboxes.iter().zip(&mut screens) {
+            for (((dof, inbox), screen), floor) in inboxes.iter().zip(&mut screens).zip(&floors) {
                 for stats in inbox.drain()? {
                     let now = clock.now_ns();
                     let stamp = untimed(&stats.stamp);
@@ -124,7 +127,7 @@ fn main() -> ExitCode {
                         Verdict::New => {}
                         Verdict::Repeat | Verdict::Refused(_) => continue,
                     }
-                    if let Err(why) = monitor::check(&stats) {
+                    if let Err(why) = monitor::check(&stats, floor) {
                         if let Some(earlier) = refused.count(now) {
                             tracing::warn!(dof = %dof, episode = stats.stamp.episode, earlier_unlogged = earlier, total = refused.total(), "report refused: {why}");
                         }
