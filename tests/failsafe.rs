@@ -5,7 +5,9 @@
 //!
 //! - when the commands stop (the step's setpoints go stale: `deadline`);
 //! - when the driver gets SIGTERM (`shutdown`), before it exits;
-//! - when the allocator is killed (`allocator_dead`), before the setpoints it left would go stale;
+//! - when the allocator is killed (`allocator_dead`), before the setpoints it left would go stale:
+//!   the test plays the supervisor's part, removing the dead process's leftovers, which announces the
+//!   death on the setpoint topic's event service (the driver does not poll for it);
 //! - and a second allocator is refused while the first drives; once the first dies the thrusters
 //!   stop, and a new allocator drives them again.
 //!
@@ -163,6 +165,20 @@ fn vehicle(ns: &Namespace, name: &str, extra: &[&str]) -> Process {
     Process::start(ns, &testkit::binary(name), &args)
 }
 
+/// What the supervisor does when a service dies: removes the dead process's iceoryx2 leftovers,
+/// which announces its death to the listeners of its topics (the driver itself looks only once no
+/// setpoints came for the deadline, too late for these tests' bound). iceoryx2 lets one thread of a
+/// process clean up at a time and refuses the others: the tests, threads of one process, take turns.
+fn remove_the_dead(ns: &Namespace) {
+    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let iox = ns.iox.config().expect("the namespace's iceoryx2 config");
+    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    assert!(
+        runtime::remove_dead_nodes(&iox) > 0,
+        "the killed allocator's leftovers were not found"
+    );
+}
+
 /// The stop is all zeros for the given cause.
 fn assert_stop(a: &Arrival, cause: StopCause, procs: &[&Process]) {
     assert_eq!(a.msg.stop_cause(), Some(cause), "{}", logs(procs));
@@ -257,6 +273,7 @@ fn a_killed_allocator_stops_the_thrusters_within_the_deadline() {
     // Setpoints fresh for another 400 ms; the allocator dies now, with no chance to clean up.
     let fresh = rig.step(&[&driver, &allocator]);
     allocator.kill9();
+    remove_the_dead(&ns);
     let stop = rig
         .stop(T)
         .unwrap_or_else(|| panic!("the thrusters never stopped\n{}", driver.log()));
@@ -307,6 +324,7 @@ fn a_second_allocator_is_refused_and_the_thrusters_stop_when_the_first_dies() {
 
     let fresh = rig.step(&[&driver, &first]);
     first.kill9();
+    remove_the_dead(&ns);
     let stop = rig
         .stop(T)
         .unwrap_or_else(|| panic!("the thrusters never stopped\n{}", driver.log()));

@@ -92,6 +92,11 @@ pub struct Output {
     pub command: DofCommand,
     /// Present when the step ended an episode.
     pub stats: Option<LearningStats>,
+    /// Present when the step began an episode before the last one had ended (its terminal step
+    /// never came: lost while a service upstream was restarted or stalled): the statistics of the
+    /// steps the behaviour saw of it, stamped with the last of them, so the trial is still
+    /// reported. Never counted towards an evaluation (step two judges whole trials only).
+    pub cut: Option<LearningStats>,
 }
 
 /// One learned DOF: its agent and the episode it is in.
@@ -100,6 +105,8 @@ pub struct Behaviour {
     agent: Agent,
     /// The episode of the last observation, and whether that observation ended it.
     last: Option<(u32, bool)>,
+    /// The stamp of the last observation.
+    last_stamp: Option<Stamp>,
     /// Step two's protocol, when the behaviour runs it.
     step_two: Option<StepTwo>,
     /// What the current trial is for (step two).
@@ -111,6 +118,7 @@ impl Behaviour {
         Behaviour {
             agent,
             last: None,
+            last_stamp: None,
             step_two: None,
             kind: TrialKind::Learning,
         }
@@ -128,6 +136,7 @@ impl Behaviour {
         Ok(Behaviour {
             agent,
             last: None,
+            last_stamp: None,
             step_two: Some(step_two),
             kind: TrialKind::Learning,
         })
@@ -164,9 +173,11 @@ impl Behaviour {
     ///
     /// An observation of a new episode while the last one had not ended (the simulator was
     /// restarted, a terminal step was lost) aborts the old episode first: no transition may span a
-    /// reset. That episode gets no statistics; the abort is logged.
+    /// reset. That episode is reported with the steps seen of it ([`Output::cut`]); the abort is
+    /// logged.
     pub fn step(&mut self, msg: &CableObservationMsg) -> Output {
         let status = msg.stamp.status();
+        let mut cut_stats = None;
         if let Some((episode, false)) = self.last
             && episode != msg.stamp.episode
             && let Some(cut) = self.agent.abort_episode()
@@ -178,8 +189,12 @@ impl Behaviour {
                 seq = msg.stamp.seq,
                 return_ = cut.return_,
                 steps = cut.steps,
-                "a new episode began before the last one ended: the last one is aborted, its pending step not learned"
+                "a new episode began before the last one ended: the last one is aborted, its pending step not learned, its steps so far reported"
             );
+            cut_stats = self.last_stamp.map(|stamp| LearningStats {
+                evaluation: self.kind.is_evaluation() as u8,
+                ..learning_stats(stamp, &cut, &self.agent)
+            });
         }
         let new_trial = self
             .last
@@ -188,6 +203,7 @@ impl Behaviour {
             self.begin_trial(msg.stamp.episode);
         }
         self.last = Some((msg.stamp.episode, status.is_terminal()));
+        self.last_stamp = Some(msg.stamp);
         let (action, episode) = behave(&mut self.agent, &msg.observation(), status);
         Output {
             command: DofCommand {
@@ -195,6 +211,7 @@ impl Behaviour {
                 value: action,
             },
             stats: episode.map(|e| self.end_trial(msg.stamp, &e)),
+            cut: cut_stats,
         }
     }
 
@@ -413,14 +430,24 @@ mod tests {
         ));
         b.step(&obs(0, 3, 0, StepStatus::Running, true));
         b.step(&obs(1, 3, 1, StepStatus::Running, true));
-        // Episode 4 starts with no terminal step of episode 3: the pending step is dropped.
+        // Episode 4 starts with no terminal step of episode 3: the pending step is dropped, and
+        // episode 3 is reported with what was seen of it, stamped with its last step.
         let out = b.step(&obs(2, 4, 0, StepStatus::Running, true));
         assert!(out.stats.is_none());
+        let cut = out.cut.expect("the cut episode is reported");
+        assert_eq!((cut.stamp.episode, cut.stamp.seq), (3, 1));
+        assert_eq!((cut.steps, cut.failed, cut.evaluation), (1, 0, 0));
+        assert!(cut.episode_return.is_finite() && cut.episode_return <= 0.0);
         assert_eq!((b.agent().episodes(), b.agent().steps()), (1, 1));
         // After a proper end, the next episode is no abort.
         let end = b.step(&obs(3, 4, 1, StepStatus::Lost, true));
         assert_eq!(end.stats.map(|s| (s.steps, s.failed)), Some((1, 1)));
-        b.step(&obs(4, 5, 0, StepStatus::Running, true));
+        assert!(end.cut.is_none());
+        assert!(
+            b.step(&obs(4, 5, 0, StepStatus::Running, true))
+                .cut
+                .is_none()
+        );
         assert_eq!(b.agent().episodes(), 2);
     }
 

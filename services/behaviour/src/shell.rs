@@ -242,6 +242,10 @@ pub fn serve(rt: &Runtime, dof: Dof, args: &Args) -> anyhow::Result<()> {
         |behaviour, answer| {
             let out = answer.output();
             commands.send(out.command)?;
+            // A trial cut short (its terminal step never came) is reported all the same.
+            if let (Answer::New(_), Some(cut)) = (answer, out.cut) {
+                stats.send(cut)?;
+            }
             // A repeated step gets the command only: the episode's statistics went out once.
             let (Answer::New(_), Some(s)) = (answer, out.stats) else {
                 return Ok(Flow::Continue);

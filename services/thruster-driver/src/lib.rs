@@ -4,8 +4,9 @@
 //!
 //! - The thrusters start at rest (a stop, cause `start`).
 //! - Setpoints whose stamp the [`Screen`] accepts are written to the sink (each value under the rule
-//!   for bad values) and are fresh until their step is older than the deadline (two sample periods
-//!   by default) on the vehicle clock; a repeat of the step written last is not written again; a
+//!   for bad values) and are fresh until their step is the deadline old (two sample periods by
+//!   default) on the vehicle clock, counted from when the camera took it (not from when the
+//!   setpoints arrived: the loop's delivery time is part of the step's age); a repeat of the step written last is not written again; a
 //!   stale, older or absurd step is refused, so a late-joining driver never acts on old setpoints.
 //! - The thrusters stop (every setpoint 0, marked with its cause) when the setpoints they hold go
 //!   stale (`deadline`), when the allocator's process is gone (`allocator_dead`), and on shutdown
@@ -109,12 +110,28 @@ impl<S: ThrusterSink> Driver<S> {
             Verdict::New => {}
         }
         let until = match self.screen.fresh_until_if_accepted(&msg.stamp, now_ns) {
+            // Taken on the driver's own clock (not older than the deadline on it): stale once the
+            // step is the deadline old, not later by the loop's delivery time.
+            Some(t) if self.on_own_clock(&msg.stamp, now_ns) => t.min(
+                msg.stamp
+                    .clock_ns
+                    .saturating_add(self.deadline().as_nanos() as u64),
+            ),
+            // A producer whose clock is behind: its age is read through its epoch's offset.
             Some(t) => t,
             None => self.failsafe.until_from(now_ns),
         };
         let applied = self.failsafe.apply(&msg.stamp, msg.as_slice(), until)?;
         self.screen.accept(&msg.stamp, now_ns);
         Ok(Taken::Written(applied))
+    }
+
+    /// Whether `stamp`'s clock reads as the driver's: taken no later than `now_ns` and less than
+    /// the deadline before it.
+    fn on_own_clock(&self, stamp: &messages::Stamp, now_ns: u64) -> bool {
+        stamp.is_timed()
+            && stamp.clock_ns <= now_ns
+            && now_ns - stamp.clock_ns < self.deadline().as_nanos() as u64
     }
 
     /// Time passed: the stop made now if the setpoints held went stale.
@@ -179,9 +196,9 @@ mod tests {
             Taken::Written(_)
         ));
         assert_eq!(d.on_setpoints(&m, T0 + 5 * MS).unwrap(), Taken::Repeat);
-        assert_eq!(d.time_left(T0 + 100 * MS), Some(Duration::from_millis(301)));
-        assert_eq!(d.on_time(T0 + 400 * MS).unwrap(), None);
-        assert_eq!(d.on_time(T0 + 401 * MS).unwrap(), Some(StopCause::Deadline));
+        assert_eq!(d.time_left(T0 + 100 * MS), Some(Duration::from_millis(300)));
+        assert_eq!(d.on_time(T0 + 399 * MS).unwrap(), None);
+        assert_eq!(d.on_time(T0 + 400 * MS).unwrap(), Some(StopCause::Deadline));
         assert_eq!(d.thrust(), Thrust::Stopped(StopCause::Deadline));
         assert_eq!(d.sink().stops(), 2);
         // A stale step after the stop is refused; a fresh one drives again.
@@ -196,6 +213,25 @@ mod tests {
             Taken::Written(_)
         ));
         assert_eq!(d.sink().written(), 2);
+    }
+
+    #[test]
+    fn a_step_from_a_clock_an_hour_behind_is_fresh_for_the_deadline_after_it_arrives() {
+        let mut d = driver();
+        let behind = T0 - 3_600_000 * MS;
+        // Its first step cannot be judged; its second, at its pace, drives.
+        let first = setpoints(1, behind, [0.1; 3]);
+        assert!(matches!(
+            d.on_setpoints(&first, T0 + 5 * MS).unwrap(),
+            Taken::Refused(Some(_))
+        ));
+        let second = setpoints(2, behind + 200 * MS, [0.2; 3]);
+        assert!(matches!(
+            d.on_setpoints(&second, T0 + 205 * MS).unwrap(),
+            Taken::Written(_)
+        ));
+        assert_eq!(d.on_time(T0 + 604 * MS).unwrap(), None);
+        assert_eq!(d.on_time(T0 + 605 * MS).unwrap(), Some(StopCause::Deadline));
     }
 
     #[test]

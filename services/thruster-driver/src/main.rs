@@ -69,12 +69,21 @@ fn main() -> ExitCode {
         tracing::info!(sink = %driver.sink().describe(), deadline_ms = deadline.as_millis() as u64, "thrusters at rest: waiting for setpoints");
         let mut bad = BadValues::new(setpoints.service());
         let clock = *rt.clock();
-        // How often the allocator's process is looked at.
-        let tick = deadline / 4;
         let mut allocator_seen = false;
-        let served = rt.serve_watched(setpoints.listener(), deadline, tick, |wake| {
+        // The allocator's death is announced on the setpoint topic's event service (iceoryx2's
+        // notifier-dead event, sent once the dead process's leftovers are removed: by the supervisor
+        // as it restarts it, or by any process that opens the topic): only then, and when the
+        // setpoints stopped coming for the deadline, are the publishers' processes looked at. The
+        // deadline stops the thrusters whether or not anyone announces the death.
+        let served = rt.serve_watched(setpoints.listener(), deadline, |wake| {
             let now = clock.now_ns();
-            let died = matches!(wake, Watch::Input { publisher_died: true, .. });
+            let look = matches!(
+                wake,
+                Watch::Input {
+                    publisher_died: true,
+                    ..
+                } | Watch::Missed
+            );
             for msg in setpoints.drain()? {
                 match driver.on_setpoints(&msg, now) {
                     Ok(Taken::Written(applied)) => {
@@ -92,7 +101,7 @@ fn main() -> ExitCode {
                     Err(e) => tracing::error!(seq = msg.stamp.seq, "cannot write the setpoints: {e}"),
                 }
             }
-            if died || matches!(wake, Watch::Tick | Watch::Missed) {
+            if look {
                 let publishers = setpoints.publisher_processes(rt.node());
                 if publishers.alive.is_empty() && driver.allocator_gone()? {
                     tracing::warn!(cause = "allocator_dead", dead = publishers.dead, "thrusters stopped: the allocator's process is gone");
@@ -102,7 +111,8 @@ fn main() -> ExitCode {
             if driver.on_time(clock.now_ns())?.is_some() {
                 tracing::warn!(cause = "deadline", deadline_ms = deadline.as_millis() as u64, "thrusters stopped: no fresh setpoints within the deadline");
             }
-            Ok(Some(driver.time_left(clock.now_ns()).map_or(tick, |t| t.min(tick))))
+            // Woken again at the deadline of the setpoints held, to the nanosecond the wait allows.
+            Ok(Some(driver.time_left(clock.now_ns()).unwrap_or(deadline)))
         });
         let closed = driver.shutdown();
         match &closed {

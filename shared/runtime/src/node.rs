@@ -291,16 +291,15 @@ impl Runtime {
 
     /// Serves one watched input, a watchdog's loop: wakes when `input` is notified (telling data
     /// from a publisher's death), when nothing was notified on it for `deadline` (iceoryx2's
-    /// deadline attachment), every `tick`, and at the latest after the time `on_wake` returns (the
+    /// deadline attachment), and at the latest after the time `on_wake` returns (the
     /// core's own deadline); until `on_wake` returns `None` or SIGINT/SIGTERM arrives.
     pub fn serve_watched(
         &self,
         input: &iceoryx2::port::listener::Listener<ipc::Service>,
         deadline: Duration,
-        tick: Duration,
         on_wake: impl FnMut(crate::Watch) -> anyhow::Result<Option<Duration>>,
     ) -> anyhow::Result<Stopped> {
-        crate::wait::serve_watched(input, deadline, tick, &self.heartbeat, on_wake)
+        crate::wait::serve_watched(input, deadline, &self.heartbeat, on_wake)
     }
 }
 

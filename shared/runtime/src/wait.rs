@@ -139,17 +139,16 @@ pub enum Watch {
     Input { data: bool, publisher_died: bool },
     /// Nothing was notified on the watched input for its deadline (iceoryx2's deadline attachment).
     Missed,
-    /// The periodic tick, or the time the handler asked to be woken at.
+    /// The time the handler asked to be woken at.
     Tick,
 }
 
 /// Serves one watched input (a watchdog): wakes when it is notified, when it was not notified for
-/// `deadline`, every `tick`, and at the latest after the time `on_wake` returns; until `on_wake`
-/// returns `None` or a termination signal arrives.
+/// `deadline`, and at the latest after the time `on_wake` returns; until `on_wake` returns `None`
+/// or a termination signal arrives.
 pub(crate) fn serve_watched(
     input: &Listener<ipc::Service>,
     deadline: Duration,
-    tick: Duration,
     heartbeat: &Heartbeat,
     mut on_wake: impl FnMut(Watch) -> anyhow::Result<Option<Duration>>,
 ) -> anyhow::Result<Stopped> {
@@ -159,9 +158,6 @@ pub(crate) fn serve_watched(
     let watched = waitset.attach_deadline(input, deadline).map_err(|e| {
         anyhow::anyhow!("cannot watch a listener with a {deadline:?} deadline: {e:?}")
     })?;
-    let ticker = waitset
-        .attach_interval(tick)
-        .map_err(|e| anyhow::anyhow!("cannot attach a {tick:?} interval: {e:?}"))?;
     // The heartbeat, as in `serve`.
     let _pulse = waitset
         .attach_interval(health::HEARTBEAT_PERIOD)
@@ -177,14 +173,12 @@ pub(crate) fn serve_watched(
     };
     let mut asked_at = Instant::now();
     loop {
-        let (mut notified, mut missed, mut ticked) = (false, false, false);
+        let (mut notified, mut missed) = (false, false);
         let mut handle = |id: WaitSetAttachmentId<ipc::Service>| {
             if id.has_missed_deadline(&watched) {
                 missed = true;
             } else if id.has_event_from(&watched) {
                 notified = true;
-            } else if id.has_event_from(&ticker) {
-                ticked = true;
             }
             CallbackProgression::Continue
         };
@@ -201,7 +195,7 @@ pub(crate) fn serve_watched(
             WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
         }
         heartbeat.beat()?;
-        if !(notified || missed || ticked) && asked_at.elapsed() < next {
+        if !(notified || missed) && asked_at.elapsed() < next {
             // Only the heartbeat's interval: nothing for the handler yet.
             continue;
         }
@@ -214,7 +208,6 @@ pub(crate) fn serve_watched(
         } else if missed {
             Watch::Missed
         } else {
-            let _ = ticked;
             Watch::Tick
         };
         match on_wake(wake)? {

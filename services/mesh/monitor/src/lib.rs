@@ -144,12 +144,52 @@ impl TracePoint {
     }
 }
 
-/// Why a report was refused.
-pub fn check(stats: &LearningStats) -> Result<(), String> {
+/// The lowest return a behaviour's report can carry, per transition it counts: every transition at
+/// the worst reward over the observation box and the action range, and at most one failure reward.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReturnFloor {
+    pub worst_step: f64,
+    pub failure: f64,
+}
+
+impl ReturnFloor {
+    /// The floor of `dof`'s reports under `scenario`'s reward and `learning`'s discount.
+    pub fn of(
+        dof: config::Dof,
+        scenario: &config::Scenario,
+        learning: &config::LearningParams,
+    ) -> Self {
+        let cost = scenario.reward.of(dof);
+        let state_max = scenario.state_max(dof);
+        ReturnFloor {
+            worst_step: cost.reward(state_max, 1.0),
+            failure: learning::failure_reward(cost, state_max, learning.nac.gamma),
+        }
+    }
+
+    /// The lowest return of `steps` transitions.
+    pub fn lowest(&self, steps: u32) -> f64 {
+        f64::from(steps) * self.worst_step.min(0.0) + self.failure.min(0.0)
+    }
+}
+
+/// Why a report was refused: its return is not a sum of `steps` costs (never below `floor`), it
+/// counts no transition (a behaviour reports none without one), or a gain is not finite.
+pub fn check(stats: &LearningStats, floor: &ReturnFloor) -> Result<(), String> {
     if !(stats.episode_return.is_finite() && stats.episode_return <= 0.0) {
         return Err(format!(
             "return {} (a sum of costs: finite, at most 0)",
             stats.episode_return
+        ));
+    }
+    if stats.steps == 0 {
+        return Err("no transition in the episode".into());
+    }
+    let lowest = floor.lowest(stats.steps);
+    if stats.episode_return < lowest {
+        return Err(format!(
+            "return {} is below {lowest}, the lowest {} transitions can sum",
+            stats.episode_return, stats.steps
         ));
     }
     if !stats.gain.iter().all(|g| g.is_finite()) {
@@ -399,13 +439,22 @@ mod tests {
 
     #[test]
     fn impossible_reports_are_refused() {
-        assert!(check(&stats(1, -2.0, false)).is_ok());
-        for bad in [f64::NAN, f64::INFINITY, 50.0] {
-            assert!(check(&stats(1, bad, false)).is_err(), "{bad}");
+        let scenario = config::Scenario::default();
+        let floor = ReturnFloor::of(Dof::Sway, &scenario, &config::LearningParams::default());
+        assert!(floor.worst_step < 0.0 && floor.failure < floor.worst_step);
+        assert!(check(&stats(1, -2.0, false), &floor).is_ok());
+        // Ten transitions at the worst reward, one of them the failure: the lowest possible.
+        let lowest = 10.0 * floor.worst_step + floor.failure;
+        assert!(check(&stats(1, lowest * 0.999, true), &floor).is_ok());
+        for bad in [f64::NAN, f64::INFINITY, 50.0, lowest * 1.01, -1e300] {
+            assert!(check(&stats(1, bad, false), &floor).is_err(), "{bad}");
         }
         let mut s = stats(1, -2.0, false);
         s.gain[1] = f64::NEG_INFINITY;
-        assert!(check(&s).is_err());
+        assert!(check(&s, &floor).is_err());
+        let mut none = stats(1, -2.0, false);
+        none.steps = 0;
+        assert!(check(&none, &floor).is_err(), "a report of no transition");
     }
 
     /// A restarted monitor resumes from its record; a lost report neither hangs the run nor

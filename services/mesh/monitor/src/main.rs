@@ -73,16 +73,16 @@ fn main() -> ExitCode {
             }
             _ => Episodes::new(),
         };
-        let limits = ScreenLimits {
-            // One report per episode: its seq jumps by the episode's steps, which a twin in lockstep
-            // takes far faster than the sample period, so the jump is bounded by no period.
-            period: Duration::from_nanos(1),
-            ..ScreenLimits::reports(
-                rt.scenario().timing.sample_time_s,
-                // Reports are not control: a report is judged stale only when it is far older than a trial.
-                Duration::from_secs(600),
-            )
-        };
+        // Reports are judged by order within their epoch alone (as untimed stamps): one comes per
+        // trial, so its age says little, and a producer whose clock is behind (a camera restarted
+        // with its time base stepped back) cannot show its pace before its next trial; timed,
+        // every report of that epoch would be refused. A forged `seq` in the live epoch is still
+        // refused: the jump is bounded (`lockstep::MAX_UNTIMED_JUMP` steps, many trials).
+        let limits = ScreenLimits::control(rt.scenario().timing.sample_time_s);
+        let untimed = |s: &messages::Stamp| messages::Stamp { clock_ns: 0, ..*s };
+        let floors = inboxes
+            .each_ref()
+            .map(|(dof, _)| monitor::ReturnFloor::of(*dof, rt.scenario(), rt.learning()));
         let mut screens = inboxes
             .each_ref()
             .map(|(_, inbox)| Screen::new(inbox.service(), limits));
@@ -119,20 +119,21 @@ fn main() -> ExitCode {
                     out.write_all(b"\n")?;
                 }
             }
-            for ((dof, inbox), screen) in inboxes.iter().zip(&mut screens) {
+            for (((dof, inbox), screen), floor) in inboxes.iter().zip(&mut screens).zip(&floors) {
                 for stats in inbox.drain()? {
                     let now = clock.now_ns();
-                    match screen.check(&stats.stamp, now) {
+                    let stamp = untimed(&stats.stamp);
+                    match screen.check(&stamp, now) {
                         Verdict::New => {}
                         Verdict::Repeat | Verdict::Refused(_) => continue,
                     }
-                    if let Err(why) = monitor::check(&stats) {
+                    if let Err(why) = monitor::check(&stats, floor) {
                         if let Some(earlier) = refused.count(now) {
                             tracing::warn!(dof = %dof, episode = stats.stamp.episode, earlier_unlogged = earlier, total = refused.total(), "report refused: {why}");
                         }
                         continue;
                     }
-                    screen.accept(&stats.stamp, now);
+                    screen.accept(&stamp, now);
                     if let Some(r) = episodes.add(*dof, stats) {
                         cli::outln!(
                             "{:7} | {:5} | {:4} | {:4} | {:11.3} | {:11.4} | [{:7.3}, {:7.3}] | [{:7.3}, {:7.3}]",

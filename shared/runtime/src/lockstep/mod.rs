@@ -23,4 +23,4 @@ mod screen;
 pub use clock::{Deadlines, Due, Limits, Phase};
 pub use consumer::{Gather, Once, Outcome, Partial};
 pub use plant::{Advanced, Cause, Lockstep, Plant, Reaction};
-pub use screen::{MAX_UNTIMED_JUMP, Refusal, Screen, ScreenLimits, Verdict};
+pub use screen::{EPOCHS_REMEMBERED, MAX_UNTIMED_JUMP, Refusal, Screen, ScreenLimits, Verdict};

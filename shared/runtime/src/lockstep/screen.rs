@@ -1,8 +1,12 @@
 //! Judging a step's stamp before a consumer acts on it: one rule for every consumer of the mesh.
 //!
-//! **Epochs.** A stamp's `epoch` is its producer's session. A stamp of another epoch than the last
-//! accepted one starts afresh: a restarted producer numbers its steps from wherever it likes, and
-//! its consumers follow it instead of dropping its `seq` as old.
+//! **Epochs.** A stamp's `epoch` is its producer's session. A stamp of an epoch never accepted before
+//! starts afresh: a restarted producer numbers its steps from wherever it likes, and its consumers
+//! follow it instead of dropping its `seq` as old. The last steps of the few epochs accepted before
+//! the current one are remembered ([`EPOCHS_REMEMBERED`]), and a stamp of one of them is judged
+//! against that epoch's last step, not taken for a new epoch: a publisher of another epoch between
+//! two steps of the live one (a second producer, a forged stamp) must not make the live epoch's
+//! next stamp, whatever its `seq`, a fresh start, nor its genuine steps then look older.
 //!
 //! **Order.** Within an epoch, a step is new when its `seq` is above the last accepted one, the same
 //! `seq` is a repeat (answered with the output already computed), a lower one is refused.
@@ -31,6 +35,11 @@ use crate::tally::Tally;
 use messages::Stamp;
 use std::time::Duration;
 
+/// Epochs remembered besides the current one (see the module docs): a producer restarts rarely,
+/// so a few cover every epoch that can still be alive. When more come, the one with the fewest
+/// accepted steps is forgotten first: a burst of one-step epochs does not push out a live one.
+pub const EPOCHS_REMEMBERED: usize = 4;
+
 /// Untimed stamps (the sim endpoint's) may jump this far: the lockstep never skips more than a few.
 pub const MAX_UNTIMED_JUMP: u64 = 10_000;
 
@@ -54,14 +63,6 @@ impl ScreenLimits {
             max_age: 2 * period,
             max_ahead: period,
             period,
-        }
-    }
-
-    /// Limits for reports that may wait (a monitor's episode statistics): `max_age` as given.
-    pub fn reports(sample_time_s: f64, max_age: Duration) -> Self {
-        ScreenLimits {
-            max_age,
-            ..Self::control(sample_time_s)
         }
     }
 }
@@ -130,6 +131,8 @@ struct Last {
     clock_ns: u64,
     /// The epoch's offset (timed stamps): the smallest arrival minus stamp clock seen.
     offset_ns: i128,
+    /// Steps accepted in the epoch.
+    steps: u64,
 }
 
 /// One consumer input's judge of stamps. Plain state fed the consumer's vehicle clock (ns).
@@ -138,6 +141,8 @@ pub struct Screen {
     input: String,
     limits: ScreenLimits,
     last: Option<Last>,
+    /// The last accepted steps of the epochs accepted before `last`'s, newest first.
+    earlier: Vec<Last>,
     /// A new epoch's first step that could not be judged: (epoch, offset).
     unsettled: Option<(u32, i128)>,
     refused: Tally,
@@ -150,6 +155,7 @@ impl Screen {
             input: input.into(),
             limits,
             last: None,
+            earlier: Vec::new(),
             unsettled: None,
             refused: Tally::default(),
         }
@@ -199,7 +205,22 @@ impl Screen {
         let same_epoch = self
             .last
             .filter(|l| l.epoch == stamp.epoch && l.timed == timed);
-        let Some(last) = same_epoch else {
+        // An epoch accepted before the current one: judged against its own last step. Its last
+        // step again is no repeat to answer (the answer kept is the current epoch's).
+        let earlier = self
+            .earlier
+            .iter()
+            .find(|l| l.epoch == stamp.epoch && l.timed == timed)
+            .copied();
+        if let Some(last) = earlier
+            && seq == last.seq
+        {
+            return Verdict::Refused(Refusal::Older {
+                seq,
+                last: last.seq,
+            });
+        }
+        let Some(last) = same_epoch.or(earlier) else {
             // A new epoch (or the first step this consumer sees).
             if !timed || (-max_ahead..=max_age).contains(&offset) {
                 self.unsettled = None;
@@ -282,11 +303,14 @@ impl Screen {
     /// The epoch's offset once `stamp`, arriving at `now_ns`, is accepted.
     fn offset_after(&self, stamp: &Stamp, now_ns: u64) -> i128 {
         let offset = now_ns as i128 - stamp.clock_ns as i128;
-        match self.last {
-            Some(l) if l.epoch == stamp.epoch && l.timed == stamp.is_timed() => {
-                l.offset_ns.min(offset)
-            }
-            _ => match self.unsettled {
+        let known = self
+            .last
+            .iter()
+            .chain(&self.earlier)
+            .find(|l| l.epoch == stamp.epoch && l.timed == stamp.is_timed());
+        match known {
+            Some(l) => l.offset_ns.min(offset),
+            None => match self.unsettled {
                 // The epoch's first step told how far behind its clock is: keep the smaller.
                 Some((epoch, first)) if epoch == stamp.epoch => first.min(offset),
                 _ => offset,
@@ -299,13 +323,36 @@ impl Screen {
         let timed = stamp.is_timed();
         let offset_ns = self.offset_after(stamp, now_ns);
         self.unsettled = None;
-        self.last = Some(Last {
+        let same = |l: &Last| l.epoch == stamp.epoch && l.timed == timed;
+        let steps = self
+            .last
+            .iter()
+            .chain(&self.earlier)
+            .find(|l| same(l))
+            .map_or(0, |l| l.steps);
+        let next = Last {
             epoch: stamp.epoch,
             timed,
             seq: stamp.seq,
             clock_ns: stamp.clock_ns,
             offset_ns,
-        });
+            steps: steps.saturating_add(1),
+        };
+        // The epoch accepted now leaves the earlier ones; the one it replaces joins them.
+        self.earlier.retain(|l| !same(l));
+        if let Some(prev) = self.last.replace(next)
+            && !same(&prev)
+        {
+            self.earlier.insert(0, prev);
+            if self.earlier.len() > EPOCHS_REMEMBERED {
+                // The fewest steps, the oldest of those on a tie.
+                let k = (0..self.earlier.len())
+                    .rev()
+                    .min_by_key(|&k| self.earlier[k].steps)
+                    .expect("not empty");
+                self.earlier.remove(k);
+            }
+        }
     }
 
     /// The arrival time (consumer's clock, ns) up to which the step accepted last is fresh:
@@ -416,6 +463,53 @@ mod tests {
             Verdict::New
         );
         assert_eq!(s.refused(), 0);
+    }
+
+    /// A rogue between two steps of the live epoch: each of its fresh epochs is followed, but a
+    /// stamp in the live epoch is still judged against that epoch's last step, so a huge `seq` in it
+    /// is refused and the live producer's next steps are accepted.
+    #[test]
+    fn other_epochs_between_steps_do_not_reopen_the_live_epoch() {
+        let mut s = Screen::new("t", limits());
+        let mut now = T0;
+        for seq in 1..=20 {
+            now = T0 + seq * 200 * MS;
+            assert_eq!(feed(&mut s, stamp(7, seq, now), now + MS), Verdict::New);
+        }
+        // More one-step epochs than are remembered, each followed by a forged step of the live one.
+        for k in 0..(2 * EPOCHS_REMEMBERED as u32) {
+            let t = now + 10 * MS + u64::from(k) * MS;
+            assert_eq!(feed(&mut s, stamp(100 + k, 1, t), t), Verdict::New);
+            assert!(matches!(
+                feed(&mut s, stamp(7, 20 + (1 << 40), t), t),
+                Verdict::Refused(Refusal::SeqJump { .. })
+            ));
+            assert!(matches!(
+                feed(&mut s, stamp(7, 10, t), t),
+                Verdict::Refused(Refusal::Older { .. })
+            ));
+            // The live epoch's last step again is not a repeat to answer with another epoch's output.
+            assert!(matches!(
+                feed(&mut s, stamp(7, 20, t), t),
+                Verdict::Refused(Refusal::Older { .. })
+            ));
+        }
+        for seq in 21..=25 {
+            let t = T0 + seq * 200 * MS;
+            assert_eq!(
+                feed(&mut s, stamp(7, seq, t), t + MS),
+                Verdict::New,
+                "step {seq}"
+            );
+        }
+        assert_eq!(s.last(), Some((7, 25)));
+        // A step of a forgotten rogue epoch is a new epoch again; a restarted producer still is.
+        let t = T0 + 5_200 * MS;
+        assert_eq!(feed(&mut s, stamp(8, 1, t), t + MS), Verdict::New);
+        assert_eq!(
+            feed(&mut s, stamp(8, 2, t + 200 * MS), t + 201 * MS),
+            Verdict::New
+        );
     }
 
     #[test]
