@@ -247,9 +247,9 @@ impl Behaviour {
     }
 
     /// The statistics of a finished trial; step two: an evaluation trial counts towards its
-    /// evaluation, and the last one has it judged (and maybe the best policy restored).
-    /// A trial of a learning step two that lost the cable ends the policy under which it was
-    /// lost: the best policy is restored at once (see [`Behaviour::fall_back`]).
+    /// evaluation, and the last one has it judged (and maybe the best policy restored). A trial
+    /// that lost the cable ends the policy under which it was lost: the best one is restored at
+    /// once ([`Behaviour::fall_back`]).
     fn end_trial(&mut self, stamp: Stamp, episode: &EpisodeSummary) -> LearningStats {
         let learning_step_two = self.step_two.as_ref().is_some_and(|s| s.learning);
         if episode.failed && learning_step_two {
@@ -348,9 +348,10 @@ impl Behaviour {
         }
     }
 
-    /// The cable was lost under the policy in force: the best policy evaluated so far is restored
-    /// at once (its critic statistics dropped), before the next trial; with none evaluated yet, or
-    /// rollback off, the policy stays.
+    /// The policy in force failed (`cause`: the cable was lost, or the position left the safety
+    /// envelope): the best policy evaluated so far is restored at once, its critic statistics
+    /// dropped; with none evaluated yet, or rollback off, the policy stays. Returns whether it was
+    /// restored.
     fn fall_back(&mut self, trial: u32, cause: &'static str) -> bool {
         let Some(s) = &self.step_two else {
             return false;
