@@ -35,8 +35,8 @@ pub mod topics;
 
 pub use payload::{
     CableObservationData, CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats,
-    RecorderStatus, ServiceEvent, Stamp, Stamped, StepStatus, StopCause, SupervisorEvent,
-    ThrusterSetpoints, VehicleStateMsg,
+    Mission, MissionCommand, RecorderStatus, ServiceEvent, Stamp, Stamped, StepStatus, StopCause,
+    SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
 };
-pub use ports::{FrameInbox, FrameOutbox, FrameTap, Inbox, Outbox, PortError, Tap};
+pub use ports::{FrameInbox, FrameOutbox, FrameTap, Heartbeat, Inbox, Outbox, PortError, Tap};
 pub use topics::{Endpoint, Qos, Topic};

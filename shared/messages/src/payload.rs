@@ -485,6 +485,44 @@ pub struct RecorderStatus {
     pub _reserved: u32,
 }
 
+/// What the shore asks of the vehicle's mesh (see [`crate::topics::shore::MISSION`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::MissionCommand/1")]
+pub struct MissionCommand {
+    /// Increases with every command the shore sends (a repeated one is not obeyed twice).
+    pub seq: u64,
+    /// The sender's monotonic clock (ns), for the link's latency.
+    pub time_ns: u64,
+    /// A [`Mission`] as u8.
+    pub command: u8,
+    pub _reserved: [u8; 7],
+}
+
+/// The commands the shore may send.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Mission {
+    /// Stop the run: the supervisor stops every service, as on SIGTERM.
+    Stop = 1,
+}
+
+impl MissionCommand {
+    pub fn new(seq: u64, time_ns: u64, command: Mission) -> Self {
+        MissionCommand {
+            seq,
+            time_ns,
+            command: command as u8,
+            _reserved: [0; 7],
+        }
+    }
+
+    /// The command; an unknown value (a newer shore) is `None` and not obeyed.
+    pub fn mission(&self) -> Option<Mission> {
+        (self.command == Mission::Stop as u8).then_some(Mission::Stop)
+    }
+}
+
 /// A message that belongs to one control step.
 pub trait Stamped {
     fn stamp(&self) -> &Stamp;

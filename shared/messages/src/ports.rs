@@ -53,7 +53,8 @@ fn service_name(service: &str) -> Result<ServiceName, PortError> {
 /// are removed (iceoryx2's `notifier_dead_event`); publishers notify with event 0.
 pub const PUBLISHER_DIED: usize = 254;
 
-fn open_event(
+/// Opens (or creates) the event service beside a topic, with the topic's QoS.
+pub fn open_event(
     node: &Node<Ipc>,
     service: &str,
     qos: &crate::Qos,
@@ -66,6 +67,65 @@ fn open_event(
         .notifier_dead_event(EventId::new(PUBLISHER_DIED))
         .open_or_create()
         .map_err(|e| fail(service, "cannot open the event service")(&e))
+}
+
+/// Opens (or creates) the heartbeat event service of process `name` (see [`crate::topics::health`]):
+/// the deadline is part of the service, so every opener agrees on it.
+pub fn open_heartbeat(
+    node: &Node<Ipc>,
+    endpoint: Endpoint,
+    name: &str,
+) -> Result<iceoryx2::service::port_factory::event::PortFactory<Ipc>, PortError> {
+    use crate::topics::health;
+    let service = health::service_name(endpoint, name);
+    node.service_builder(&service_name(&service)?)
+        .event()
+        .deadline(health::HEARTBEAT_DEADLINE)
+        .max_notifiers(health::MAX_NOTIFIERS)
+        .max_listeners(health::MAX_LISTENERS)
+        .max_nodes(health::MAX_NODES)
+        .open_or_create()
+        .map_err(|e| fail(&service, "cannot open the heartbeat")(&e))
+}
+
+/// Notifies a process's heartbeat. The event id is the process's restart count (see
+/// [`crate::topics::health::MAX_RESTARTS_ID`]): a listener tells a restarted process from its
+/// predecessor, on this host or across the shore link.
+pub struct Heartbeat {
+    service: String,
+    notifier: Notifier<Ipc>,
+    id: EventId,
+}
+
+impl Heartbeat {
+    pub fn open(
+        node: &Node<Ipc>,
+        endpoint: Endpoint,
+        name: &str,
+        restarts: usize,
+    ) -> Result<Self, PortError> {
+        let service = crate::topics::health::service_name(endpoint, name);
+        let notifier = open_heartbeat(node, endpoint, name)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| fail(&service, "cannot create a notifier")(&e))?;
+        let id = EventId::new(restarts.min(crate::topics::health::MAX_RESTARTS_ID));
+        Ok(Heartbeat {
+            service,
+            notifier,
+            id,
+        })
+    }
+
+    /// One beat. A beat later than the deadline is still a beat (the notification goes out; the
+    /// listeners have seen the miss already), so that is not an error.
+    pub fn beat(&self) -> Result<(), PortError> {
+        use iceoryx2::port::notifier::NotifierNotifyError;
+        match self.notifier.notify_with_custom_event_id(self.id) {
+            Ok(_) | Err(NotifierNotifyError::MissedDeadline) => Ok(()),
+            Err(e) => Err(fail(&self.service, "cannot notify")(&e)),
+        }
+    }
 }
 
 /// A listener of the topic `service`'s event: notified after each message published on it.

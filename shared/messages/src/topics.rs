@@ -168,6 +168,64 @@ pub fn learning(dof: config::Dof) -> Topic<LearningStats> {
     }
 }
 
+/// Health: every process of a mesh notifies its heartbeat event service at least every
+/// [`HEARTBEAT_PERIOD`], from its wait loop (`runtime`), so a process that is alive but stuck (stopped,
+/// or spinning inside one step) misses the service's [`HEARTBEAT_DEADLINE`]. The supervisor and the
+/// status command listen. An event service, not a topic: a heartbeat carries no data.
+pub mod health {
+    use super::Endpoint;
+    use std::time::Duration;
+
+    /// How often a process notifies its heartbeat, input or not.
+    pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(50);
+    /// The event service's deadline: five periods, so a process that is descheduled for a moment
+    /// on a loaded machine is not taken for stuck, and a stuck one is found within a quarter second.
+    pub const HEARTBEAT_DEADLINE: Duration = Duration::from_millis(250);
+    /// The process itself, and its restarted successor while the stuck one is being removed; the
+    /// shore link's notifier when the heartbeat is bridged.
+    pub const MAX_NOTIFIERS: usize = 4;
+    /// The supervisor, a status command, the shore link, a test's probe.
+    pub const MAX_LISTENERS: usize = 8;
+    pub const MAX_NODES: usize = 16;
+    /// A heartbeat's event id is the process's restart count, up to this (iceoryx2's default
+    /// largest event id).
+    pub const MAX_RESTARTS_ID: usize = 255;
+
+    /// The heartbeat event service of the process `name` on `endpoint`:
+    /// `cabletrack/<endpoint>/heartbeat/<name>`.
+    pub fn service_name(endpoint: Endpoint, name: &str) -> String {
+        format!("cabletrack/{}/heartbeat/{name}", endpoint.name())
+    }
+}
+
+/// The shore: what an operator's computer sends to the vehicle over the shore link. Its own
+/// namespace, `cabletrack/shore/<topic>`, apart from the vehicle's telemetry (`cabletrack/vehicle/...`),
+/// so the link's allow-list keeps the two directions apart by name.
+pub mod shore {
+    use super::{Qos, Topic};
+    use crate::payload::MissionCommand;
+
+    /// Start/stop commands for the vehicle's mesh; its supervisor obeys them.
+    pub const MISSION: Topic<MissionCommand> = Topic::new(
+        "mission",
+        Qos {
+            // A subscriber that connects after the command (the link, the supervisor) still gets it.
+            history: 1,
+            buffer: 4,
+            recorder_buffer: 4,
+            // The operator, and the link's mirror on the vehicle.
+            max_publishers: 2,
+            // The supervisor, the link, a test's probe.
+            max_subscribers: 4,
+            max_nodes: 16,
+        },
+    );
+
+    /// `cabletrack/shore/<topic>`.
+    pub fn service_name<P: ?Sized>(topic: &Topic<P>) -> String {
+        format!("cabletrack/shore/{}", topic.name)
+    }
+}
 /// The supervisor's events: a service started, exited, is restarted, or was stopped with the mesh.
 /// A few a minute at most; the history lets a restarted recorder see the latest ones.
 pub const SUPERVISOR_EVENTS: Topic<SupervisorEvent> = Topic::new(
@@ -292,6 +350,23 @@ mod tests {
         );
         assert_eq!(hardware::TWIN_THRUSTERS.qos.max_publishers, 1);
         assert_eq!(hardware::TWIN_THRUSTERS.qos.history, 0);
+    }
+
+    #[test]
+    fn a_heartbeat_deadline_spans_several_periods() {
+        assert_eq!(
+            health::service_name(Endpoint::Vehicle, "perception"),
+            "cabletrack/vehicle/heartbeat/perception"
+        );
+        assert!(health::HEARTBEAT_DEADLINE >= 4 * health::HEARTBEAT_PERIOD);
+    }
+
+    #[test]
+    fn shore_commands_live_apart_from_the_telemetry() {
+        assert_eq!(
+            shore::service_name(&shore::MISSION),
+            "cabletrack/shore/mission"
+        );
     }
 
     #[test]

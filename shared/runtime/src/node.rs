@@ -4,7 +4,7 @@ use iceoryx2::config::Config as IoxConfig;
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use messages::{
-    Endpoint, FrameInbox, FrameOutbox, FrameTap, Inbox, Outbox, PortError, Tap, Topic,
+    Endpoint, FrameInbox, FrameOutbox, FrameTap, Heartbeat, Inbox, Outbox, PortError, Tap, Topic,
     ports::Payload,
 };
 use std::io::IsTerminal;
@@ -99,6 +99,9 @@ pub struct Runtime {
     learning: LearningParams,
     iox: IoxConfig,
     node: Node<ipc::Service>,
+    /// Beats from every wait loop ([`Runtime::serve`]): the supervisor restarts a process that falls
+    /// silent.
+    heartbeat: Heartbeat,
     clock: crate::VehicleClock,
 }
 
@@ -166,6 +169,8 @@ impl Runtime {
         // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait; install it now, so a signal
         // during start-up is seen and not fatal.
         let _ = node.wait(Duration::ZERO);
+        // Set by the supervisor when it restarts this service; the heartbeat carries it.
+        let heartbeat = Heartbeat::open(&node, args.endpoint, name, restarts() as usize)?;
         Ok(Runtime {
             name,
             endpoint: args.endpoint,
@@ -175,6 +180,7 @@ impl Runtime {
             learning,
             iox,
             node,
+            heartbeat,
             clock,
         })
     }
@@ -280,7 +286,7 @@ impl Runtime {
         timer: Timer,
         on_wake: impl FnMut(Wake) -> anyhow::Result<crate::Flow>,
     ) -> anyhow::Result<Stopped> {
-        crate::wait::serve(inputs, timer, on_wake)
+        crate::wait::serve(inputs, timer, &self.heartbeat, on_wake)
     }
 
     /// Serves one watched input, a watchdog's loop: wakes when `input` is notified (telling data
@@ -294,7 +300,7 @@ impl Runtime {
         tick: Duration,
         on_wake: impl FnMut(crate::Watch) -> anyhow::Result<Option<Duration>>,
     ) -> anyhow::Result<Stopped> {
-        crate::wait::serve_watched(input, deadline, tick, on_wake)
+        crate::wait::serve_watched(input, deadline, tick, &self.heartbeat, on_wake)
     }
 }
 

@@ -3,7 +3,9 @@
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
-use std::time::Duration;
+use messages::Heartbeat;
+use messages::topics::health;
+use std::time::{Duration, Instant};
 
 /// When to wake without input.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -44,6 +46,7 @@ pub enum Stopped {
 pub(crate) fn serve(
     inputs: &[&Listener<ipc::Service>],
     timer: Timer,
+    heartbeat: &Heartbeat,
     mut on_wake: impl FnMut(Wake) -> anyhow::Result<Flow>,
 ) -> anyhow::Result<Stopped> {
     let waitset = WaitSetBuilder::new()
@@ -57,15 +60,14 @@ pub(crate) fn serve(
                 .map_err(|e| anyhow::anyhow!("cannot wait on a listener: {e:?}"))?,
         );
     }
-    // An interval timer is an attachment of its own. A loop with a timeout but no input has nothing
-    // to attach (a WaitSet refuses to wait on nothing): its timeout becomes an interval.
+    // An interval timer is an attachment of its own; a timeout is counted here, from the last call
+    // of `on_wake`, because the heartbeat's interval wakes the WaitSet in between.
     let (period, timeout) = match timer {
         Timer::Interval(p) => (Some(p), None),
-        Timer::Timeout(t) if inputs.is_empty() => (Some(t), None),
         Timer::Timeout(t) => (None, Some(t)),
         Timer::None => (None, None),
     };
-    let _tick = match period {
+    let tick = match period {
         Some(p) => Some(
             waitset
                 .attach_interval(p)
@@ -73,19 +75,31 @@ pub(crate) fn serve(
         ),
         None => None,
     };
+    // The heartbeat beats from this loop, so a process stuck anywhere (stopped, or inside one wake)
+    // falls silent.
+    let _pulse = waitset
+        .attach_interval(health::HEARTBEAT_PERIOD)
+        .map_err(|e| anyhow::anyhow!("cannot attach the heartbeat's interval: {e:?}"))?;
+    heartbeat.beat()?;
     // A message sent before this process's listener existed announced itself to nobody (a topic's
     // history, a producer faster than our start-up): look at the inputs once before the first wait.
     if !inputs.is_empty() && on_wake(Wake::Input)? == Flow::Stop {
         return Ok(Stopped::Done);
     }
+    let mut last_wake = Instant::now();
     loop {
         let mut input = false;
+        let mut ticked = false;
         let mut handle = |id: WaitSetAttachmentId<ipc::Service>| {
             input |= guards.iter().any(|g| id.has_event_from(g));
+            ticked |= tick.as_ref().is_some_and(|t| id.has_event_from(t));
             CallbackProgression::Continue
         };
         let result = match timeout {
-            Some(t) => waitset.wait_and_process_once_with_timeout(&mut handle, t),
+            Some(t) => waitset.wait_and_process_once_with_timeout(
+                &mut handle,
+                t.saturating_sub(last_wake.elapsed()),
+            ),
             None => waitset.wait_and_process_once(&mut handle),
         }
         .map_err(|e| anyhow::anyhow!("waiting: {e:?}"))?;
@@ -96,13 +110,22 @@ pub(crate) fn serve(
             WaitSetRunResult::Interrupt => continue,
             WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
         }
+        heartbeat.beat()?;
         // Notifications are level-triggered: consume them, or the WaitSet wakes again at once. Data
         // that arrives after this is announced by a new notification, so nothing is missed.
         for listener in inputs {
             let _ = listener.try_wait(|_| {});
         }
-        // Without input, the timeout passed (reported as AllEventsHandled) or the interval fired.
-        let wake = if input { Wake::Input } else { Wake::Timer };
+        let timed_out = timeout.is_some_and(|t| last_wake.elapsed() >= t);
+        let wake = if input {
+            Wake::Input
+        } else if ticked || timed_out {
+            Wake::Timer
+        } else {
+            // Only the heartbeat's interval: nothing for the service.
+            continue;
+        };
+        last_wake = Instant::now();
         if on_wake(wake)? == Flow::Stop {
             return Ok(Stopped::Done);
         }
@@ -127,6 +150,7 @@ pub(crate) fn serve_watched(
     input: &Listener<ipc::Service>,
     deadline: Duration,
     tick: Duration,
+    heartbeat: &Heartbeat,
     mut on_wake: impl FnMut(Watch) -> anyhow::Result<Option<Duration>>,
 ) -> anyhow::Result<Stopped> {
     let waitset = WaitSetBuilder::new()
@@ -138,6 +162,11 @@ pub(crate) fn serve_watched(
     let ticker = waitset
         .attach_interval(tick)
         .map_err(|e| anyhow::anyhow!("cannot attach a {tick:?} interval: {e:?}"))?;
+    // The heartbeat, as in `serve`.
+    let _pulse = waitset
+        .attach_interval(health::HEARTBEAT_PERIOD)
+        .map_err(|e| anyhow::anyhow!("cannot attach the heartbeat's interval: {e:?}"))?;
+    heartbeat.beat()?;
     // What arrived before the watch began (a topic's history) is looked at first.
     let mut next = match on_wake(Watch::Input {
         data: true,
@@ -146,6 +175,7 @@ pub(crate) fn serve_watched(
         Some(t) => t,
         None => return Ok(Stopped::Done),
     };
+    let mut asked_at = Instant::now();
     loop {
         let (mut notified, mut missed, mut ticked) = (false, false, false);
         let mut handle = |id: WaitSetAttachmentId<ipc::Service>| {
@@ -159,13 +189,21 @@ pub(crate) fn serve_watched(
             CallbackProgression::Continue
         };
         let result = waitset
-            .wait_and_process_once_with_timeout(&mut handle, next)
+            .wait_and_process_once_with_timeout(
+                &mut handle,
+                next.saturating_sub(asked_at.elapsed()),
+            )
             .map_err(|e| anyhow::anyhow!("waiting: {e:?}"))?;
         match result {
             WaitSetRunResult::TerminationRequest => return Ok(Stopped::Signal),
             // Not a request to stop (see `serve`): wait again.
             WaitSetRunResult::Interrupt => continue,
             WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
+        }
+        heartbeat.beat()?;
+        if !(notified || missed || ticked) && asked_at.elapsed() < next {
+            // Only the heartbeat's interval: nothing for the handler yet.
+            continue;
         }
         let wake = if notified {
             let n = messages::ports::take_notifications(input);
@@ -183,5 +221,6 @@ pub(crate) fn serve_watched(
             Some(t) => next = t,
             None => return Ok(Stopped::Done),
         }
+        asked_at = Instant::now();
     }
 }

@@ -8,6 +8,8 @@
 //! recorded, or reported by one behaviour while the other's report never came
 //! ([`Episodes::finished`]).
 
+pub mod status;
+
 use config::PerDof;
 use messages::LearningStats;
 use serde::{Deserialize, Serialize};

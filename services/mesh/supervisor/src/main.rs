@@ -20,6 +20,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use supervisor::{MeshFile, ServiceCommand};
 
+mod watch;
+
 #[derive(Parser)]
 #[command(
     version,
@@ -95,6 +97,8 @@ struct Service {
 /// Wakes the supervisor's poll on SIGCHLD, SIGINT and SIGTERM.
 struct Signals {
     wake: UnixStream,
+    /// The other end, for the health watch's wake-ups.
+    write: UnixStream,
     stop: Arc<AtomicBool>,
 }
 
@@ -107,8 +111,9 @@ impl Signals {
             signal_hook::flag::register(sig, Arc::clone(&stop))?;
             signal_hook::low_level::pipe::register(sig, write.try_clone()?)?;
         }
-        signal_hook::low_level::pipe::register(signal_hook::consts::SIGCHLD, write)?;
-        Ok(Signals { wake, stop })
+        signal_hook::low_level::pipe::register(signal_hook::consts::SIGCHLD, write.try_clone()?)?;
+        write.set_nonblocking(true)?;
+        Ok(Signals { wake, write, stop })
     }
 
     /// Blocks until a signal arrives or `timeout` passes (`None`: no timeout).
@@ -258,6 +263,12 @@ fn run(args: Args) -> Result<ExitCode> {
             restarts: Vec::new(),
         });
     }
+    let watch = watch::Watch::start(
+        &iox,
+        endpoint,
+        services.iter().map(|s| s.cmd.name.clone()).collect(),
+        signals.write.try_clone()?,
+    )?;
     tracing::info!(mesh = %args.mesh.display(), services = services.len(), "starting the mesh");
     let stop_when = mesh.mesh.stop_when.clone();
     let restart = mesh.restart.clone();
@@ -296,13 +307,24 @@ fn run(args: Args) -> Result<ExitCode> {
             tracing::info!("termination requested: stopping the mesh");
             break Ok(());
         }
+        if watch.stop_commanded() {
+            tracing::info!("the shore commands a stop: stopping the mesh");
+            break Ok(());
+        }
         // Reap and decide.
         let mut failure = None;
-        for s in &mut services {
+        for (i, s) in services.iter_mut().enumerate() {
             let State::Running { child, since } = &mut s.state else {
                 continue;
             };
-            let Some(status) = child.try_status() else {
+            let Some(status) = child.try_status().or_else(|| {
+                stuck(&watch.pulse(i), *since, &iox, child.started_pid(), s.cmd.restart).map(
+                    |silent| {
+                        tracing::warn!(service = %s.cmd.name, silent_ms = silent.as_millis() as u64, "alive but its heartbeat is silent: killing it");
+                        child.kill()
+                    },
+                )
+            }) else {
                 continue;
             };
             let ran = since.elapsed().as_secs_f64();
@@ -390,6 +412,25 @@ fn run(args: Args) -> Result<ExitCode> {
             Ok(ExitCode::FAILURE)
         }
     }
+}
+
+/// How long a service that is to be restarted has been silent, if it is stuck: it has beaten since it
+/// started, then missed its heartbeat's deadline [`watch::STUCK_AFTER_MISSES`] times in a row, and
+/// its node is alive (a dead node's exit is
+/// reaped as such).
+fn stuck(
+    pulse: &watch::Pulse,
+    since: Instant,
+    iox: &iceoryx2::config::Config,
+    pid: u32,
+    restart: bool,
+) -> Option<Duration> {
+    let last = pulse.last.filter(|&l| l > since)?;
+    pulse.missed?;
+    if pulse.misses < watch::STUCK_AFTER_MISSES {
+        return None;
+    }
+    (restart && watch::node_alive(iox, pid) != Some(false)).then(|| last.elapsed())
 }
 
 /// SIGTERM to every running service that is (or is not) an observer, up to `grace` for them to

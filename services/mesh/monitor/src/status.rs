@@ -1,0 +1,225 @@
+//! The status view's core: what an operator reads of a running mesh, per service (node state, age of
+//! the last heartbeat, restarts), per topic (rate and last stamp) and per learner (gains, returns).
+//! Plain records filled by the `status` binary and printed as a table or JSON.
+
+use messages::{LearningStats, Stamp};
+use serde::Serialize;
+use std::fmt::Write;
+
+/// A service's node as `Node::list` reports it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NodeState {
+    Alive,
+    /// Gone without cleaning up (killed): its resources wait for removal.
+    Dead,
+    /// No node of that name here: not started, or on another host (seen through the shore link).
+    Absent,
+}
+
+/// One service's health.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ServiceStatus {
+    pub name: String,
+    pub node: NodeState,
+    /// Seconds since its last heartbeat, if one came within the observation.
+    pub heartbeat_age_s: Option<f64>,
+    /// The restart count its heartbeat carries.
+    pub restarts: Option<usize>,
+}
+
+/// One topic's traffic over the observation.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TopicStatus {
+    pub topic: String,
+    pub messages: u64,
+    pub rate_hz: f64,
+    pub last_seq: Option<u64>,
+    pub last_episode: Option<u32>,
+    pub last_step: Option<u32>,
+}
+
+impl TopicStatus {
+    /// `messages` received in `window_s`, the last one's stamp.
+    pub fn new(topic: &str, messages: u64, window_s: f64, last: Option<&Stamp>) -> Self {
+        TopicStatus {
+            topic: topic.to_owned(),
+            messages,
+            rate_hz: if window_s > 0.0 {
+                messages as f64 / window_s
+            } else {
+                0.0
+            },
+            last_seq: last.map(|s| s.seq),
+            last_episode: last.map(|s| s.episode),
+            last_step: last.map(|s| s.step),
+        }
+    }
+}
+
+/// A learner's latest report.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct LearnerStatus {
+    pub dof: String,
+    pub episode: u32,
+    pub gain: [f64; 2],
+    pub episode_return: f64,
+    pub actor_updates: u64,
+    pub learning: bool,
+}
+
+impl LearnerStatus {
+    pub fn new(dof: config::Dof, s: &LearningStats) -> Self {
+        LearnerStatus {
+            dof: dof.to_string(),
+            episode: s.stamp.episode,
+            gain: s.gain,
+            episode_return: s.episode_return,
+            actor_updates: s.actor_updates,
+            learning: s.learning != 0,
+        }
+    }
+}
+
+/// The whole view.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Status {
+    pub endpoint: String,
+    pub window_s: f64,
+    pub services: Vec<ServiceStatus>,
+    pub topics: Vec<TopicStatus>,
+    pub learners: Vec<LearnerStatus>,
+}
+
+fn opt<T: std::fmt::Display>(v: Option<T>) -> String {
+    v.map_or_else(|| "-".to_owned(), |v| v.to_string())
+}
+
+impl Status {
+    /// The table an operator reads.
+    pub fn table(&self) -> String {
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "{} mesh, observed for {:.1} s",
+            self.endpoint, self.window_s
+        );
+        let _ = writeln!(out, "service             | node   | heartbeat | restarts");
+        for s in &self.services {
+            let node = match s.node {
+                NodeState::Alive => "alive",
+                NodeState::Dead => "dead",
+                NodeState::Absent => "-",
+            };
+            let age = s
+                .heartbeat_age_s
+                .map_or_else(|| "none".to_owned(), |a| format!("{:.2} s", a));
+            let _ = writeln!(
+                out,
+                "{:19} | {:6} | {:>9} | {}",
+                s.name,
+                node,
+                age,
+                opt(s.restarts)
+            );
+        }
+        let _ = writeln!(
+            out,
+            "topic               |   rate Hz | last seq | episode | step"
+        );
+        for t in &self.topics {
+            let _ = writeln!(
+                out,
+                "{:19} | {:9.2} | {:>8} | {:>7} | {:>4}",
+                t.topic,
+                t.rate_hz,
+                opt(t.last_seq),
+                opt(t.last_episode),
+                opt(t.last_step)
+            );
+        }
+        let _ = writeln!(
+            out,
+            "learner | episode | K                  | return     | updates"
+        );
+        for l in &self.learners {
+            let _ = writeln!(
+                out,
+                "{:7} | {:7} | [{:7.3}, {:7.3}] | {:10.3} | {}{}",
+                l.dof,
+                l.episode,
+                l.gain[0],
+                l.gain[1],
+                l.episode_return,
+                l.actor_updates,
+                if l.learning { "" } else { " (acting only)" }
+            );
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rates_and_stamps_come_from_what_was_received() {
+        let stamp = Stamp::new(42, 0, 3, 7, config::StepStatus::Running);
+        let t = TopicStatus::new("cable_observation", 10, 2.0, Some(&stamp));
+        assert_eq!(t.rate_hz, 5.0);
+        assert_eq!(
+            (t.last_seq, t.last_episode, t.last_step),
+            (Some(42), Some(3), Some(7))
+        );
+        let silent = TopicStatus::new("vehicle_state", 0, 2.0, None);
+        assert_eq!((silent.rate_hz, silent.last_seq), (0.0, None));
+    }
+
+    #[test]
+    fn the_table_shows_every_service_topic_and_learner() {
+        let stats = LearningStats {
+            episode_return: -1.5,
+            gain: [0.25, -0.5],
+            learning: 1,
+            ..Default::default()
+        };
+        let status = Status {
+            endpoint: "vehicle".into(),
+            window_s: 2.0,
+            services: vec![
+                ServiceStatus {
+                    name: "perception".into(),
+                    node: NodeState::Alive,
+                    heartbeat_age_s: Some(0.02),
+                    restarts: Some(1),
+                },
+                ServiceStatus {
+                    name: "camera".into(),
+                    node: NodeState::Dead,
+                    heartbeat_age_s: None,
+                    restarts: None,
+                },
+            ],
+            topics: vec![TopicStatus::new("camera_frame", 10, 2.0, None)],
+            learners: vec![LearnerStatus::new(config::Dof::Yaw, &stats)],
+        };
+        let table = status.table();
+        for want in [
+            "perception",
+            "alive",
+            "0.02 s",
+            "camera",
+            "dead",
+            "none",
+            "camera_frame",
+            "5.00",
+            "0.250",
+            "-1.500",
+        ] {
+            assert!(table.contains(want), "`{want}` missing from\n{table}");
+        }
+        let json = serde_json::to_value(&status).unwrap();
+        assert_eq!(json["services"][1]["node"], "dead");
+    }
+}
