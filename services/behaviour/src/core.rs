@@ -10,7 +10,7 @@
 //! [`crate::step_two`]): each trial is a learning or an evaluation trial, every actor update passes
 //! the safety guard, and each evaluation is judged against the best policy so far.
 
-use crate::step_two::{StepTwo, TrialKind, guard};
+use crate::step_two::{SAFETY_ENVELOPE, StepTwo, TrialKind, guard};
 use config::{Dof, LearningParams, Scenario};
 use learning::lqr::LqrError;
 use learning::{Agent, AgentState, Algorithm, EpisodeSummary, Verdict};
@@ -111,6 +111,9 @@ pub struct Behaviour {
     step_two: Option<StepTwo>,
     /// What the current trial is for (step two).
     kind: TrialKind,
+    /// Step two: the best policy was restored in this learning trial because the DOF's state left
+    /// the safety envelope; the trial goes on with it, without learning.
+    recovering: bool,
 }
 
 impl Behaviour {
@@ -121,6 +124,7 @@ impl Behaviour {
             last_stamp: None,
             step_two: None,
             kind: TrialKind::Learning,
+            recovering: false,
         }
     }
 
@@ -139,6 +143,7 @@ impl Behaviour {
             last_stamp: None,
             step_two: Some(step_two),
             kind: TrialKind::Learning,
+            recovering: false,
         })
     }
 
@@ -204,7 +209,11 @@ impl Behaviour {
         }
         self.last = Some((msg.stamp.episode, status.is_terminal()));
         self.last_stamp = Some(msg.stamp);
-        let (action, episode) = behave(&mut self.agent, &msg.observation(), status);
+        let obs = msg.observation();
+        if status == StepStatus::Running && obs.found {
+            self.guard_envelope(&obs, msg.stamp.episode);
+        }
+        let (action, episode) = behave(&mut self.agent, &obs, status);
         Output {
             command: DofCommand {
                 stamp: msg.stamp,
@@ -215,8 +224,28 @@ impl Behaviour {
         }
     }
 
+    /// Step two, a learning trial: when the DOF's observed position leaves the safety envelope
+    /// ([`SAFETY_ENVELOPE`] of its observation box), the learned policy is heading for losing the cable:
+    /// the best policy is restored at once and the trial goes on with it, without learning.
+    fn guard_envelope(&mut self, obs: &CableObservation, trial: u32) {
+        let learning = self.step_two.as_ref().is_some_and(|s| s.learning);
+        if !learning || self.recovering || self.kind.is_evaluation() {
+            return;
+        }
+        let x = obs.state(self.dof())[0];
+        let edge = SAFETY_ENVELOPE * self.agent.state_max()[0];
+        if x.abs() <= edge {
+            return;
+        }
+        if self.fall_back(trial, "the position left the safety envelope") {
+            self.agent.set_learning(false);
+            self.recovering = true;
+        }
+    }
+
     /// Step two: sets the agent up for trial `trial` (learning or not, its exploration noise).
     fn begin_trial(&mut self, trial: u32) {
+        self.recovering = false;
         let Some(s) = &self.step_two else { return };
         self.kind = s.kind(trial);
         let seed = s.noise_seed(trial, self.kind);
@@ -224,15 +253,25 @@ impl Behaviour {
         if self.kind == (TrialKind::Evaluation { slot: 0 }) {
             // A new evaluation: whatever an earlier, unfinished one summed is not part of it.
             let safety = self.agent.safety_mut();
-            (safety.evaluation_sum, safety.evaluation_trials) = (0.0, 0);
+            (
+                safety.evaluation_sum,
+                safety.evaluation_trials,
+                safety.evaluation_lost,
+            ) = (0.0, 0, 0);
         }
         self.agent.set_learning(learning);
         self.agent.reseed(seed);
     }
 
     /// The statistics of a finished trial; step two: an evaluation trial counts towards its
-    /// evaluation, and the last one has it judged (and maybe the best policy restored).
+    /// evaluation, and the last one has it judged (and maybe the best policy restored). A trial
+    /// that lost the cable ends the policy under which it was lost: the best one is restored at
+    /// once ([`Behaviour::fall_back`]).
     fn end_trial(&mut self, stamp: Stamp, episode: &EpisodeSummary) -> LearningStats {
+        let learning_step_two = self.step_two.as_ref().is_some_and(|s| s.learning);
+        if episode.failed && learning_step_two {
+            self.fall_back(stamp.episode, "the cable was lost");
+        }
         let TrialKind::Evaluation { slot } = self.kind else {
             return learning_stats(stamp, episode, &self.agent);
         };
@@ -241,14 +280,21 @@ impl Behaviour {
         let safety = self.agent.safety_mut();
         safety.evaluation_sum += episode.return_;
         safety.evaluation_trials += 1;
+        safety.evaluation_lost += episode.failed as u32;
         let (mut evaluated, mut rolled_back) = (f64::NAN, false);
         if closes {
             let (sum, n) = (safety.evaluation_sum, safety.evaluation_trials);
-            (safety.evaluation_sum, safety.evaluation_trials) = (0.0, 0);
             if n == wanted {
                 evaluated = sum / n as f64;
                 rolled_back = self.judge(judge, evaluated, stamp.episode);
-            } else {
+            }
+            let safety = self.agent.safety_mut();
+            (
+                safety.evaluation_sum,
+                safety.evaluation_trials,
+                safety.evaluation_lost,
+            ) = (0.0, 0, 0);
+            if n != wanted {
                 tracing::warn!(
                     dof = %self.dof(),
                     trial = stamp.episode,
@@ -296,6 +342,62 @@ impl Behaviour {
                 );
                 self.agent.restore(best.gain);
                 true
+            }
+            Verdict::Failed { best } => {
+                let lost = self.agent.safety().evaluation_lost;
+                tracing::warn!(
+                    dof = %self.dof(),
+                    trial,
+                    ?gain,
+                    evaluated,
+                    lost,
+                    best = best.map(|b| b.evaluated),
+                    "evaluation: the cable was lost; the policy is not a candidate for the best"
+                );
+                match best {
+                    Some(best) => {
+                        self.agent.restore(best.gain);
+                        true
+                    }
+                    None => false,
+                }
+            }
+        }
+    }
+
+    /// The policy in force failed (`cause`: the cable was lost, or the position left the safety
+    /// envelope): the best policy evaluated so far is restored at once, its critic statistics
+    /// dropped; with none evaluated yet, or rollback off, the policy stays. Returns whether it was
+    /// restored.
+    fn fall_back(&mut self, trial: u32, cause: &'static str) -> bool {
+        let Some(s) = &self.step_two else {
+            return false;
+        };
+        let judge = s.keep_best;
+        let gain = self.agent.gain();
+        match judge.fall_back(self.agent.safety_mut()) {
+            Some(best) => {
+                tracing::warn!(
+                    dof = %self.dof(),
+                    trial,
+                    ?gain,
+                    best_gain = ?best.gain,
+                    best = best.evaluated,
+                    cause,
+                    "the best policy is restored"
+                );
+                self.agent.restore(best.gain);
+                true
+            }
+            None => {
+                tracing::warn!(
+                    dof = %self.dof(),
+                    trial,
+                    ?gain,
+                    cause,
+                    "no policy has been evaluated to fall back to (or rollback is off)"
+                );
+                false
             }
         }
     }
@@ -350,6 +452,112 @@ mod tests {
             }
         }
         v
+    }
+
+    /// Step two with one evaluation trial and one learning trial in turn, a learner whose every step
+    /// moves the gain, and the default safety layer.
+    fn step_two_sway() -> Behaviour {
+        let (scenario, mut learning) = params();
+        learning.evaluation = config::EvaluationParams {
+            trials: 1,
+            learning_trials: 1,
+        };
+        learning.gpomdp.alpha.sway = 1.0;
+        learning.safety.stability.enabled = false;
+        let agent = new_agent(Dof::Sway, Algorithm::Gpomdp, &scenario, &learning, 5);
+        let step_two = StepTwo::new(&learning, true, 5, 6);
+        Behaviour::for_step_two(agent, step_two, &scenario).unwrap()
+    }
+
+    /// Trial `episode` of `len` steps ending with `end`, its observations' x_g given by `x_g`: its
+    /// statistics, and the gain before its last observation.
+    fn trial(
+        b: &mut Behaviour,
+        seq: &mut u64,
+        episode: u32,
+        len: u32,
+        end: StepStatus,
+        x_g: impl Fn(u32) -> f64,
+    ) -> (LearningStats, [f64; 2]) {
+        let (mut stats, mut before_end) = (None, b.agent().gain());
+        for step in 0..=len {
+            let status = if step == len {
+                end
+            } else {
+                StepStatus::Running
+            };
+            let mut o = obs(*seq, episode, step, status, true);
+            o.observation.x_g = x_g(step);
+            *seq += 1;
+            before_end = b.agent().gain();
+            stats = b.step(&o).stats.or(stats);
+        }
+        (stats.expect("the trial ended"), before_end)
+    }
+
+    /// A learning trial that loses the cable ends its policy: the best one is restored before the
+    /// next trial, counted as a rollback; an evaluation that loses it is never the best.
+    #[test]
+    fn a_lost_cable_restores_the_best_policy_at_once() {
+        let mut b = step_two_sway();
+        let mut seq = 0;
+        let calm = |t: u32| 0.1 * (0.4 * t as f64).sin();
+        // A long evaluation off the cable: costly, but the cable kept.
+        let (first, _) = trial(&mut b, &mut seq, 0, 200, StepStatus::TimeLimit, |_| 0.3);
+        let best = b
+            .agent()
+            .safety()
+            .best
+            .expect("the first evaluation is the best");
+        assert_eq!((first.evaluation, best.gain), (1, b.agent().gain()));
+        let (lost, learned) = trial(&mut b, &mut seq, 1, 20, StepStatus::Lost, calm);
+        assert_ne!(learned, best.gain, "the learning trial moved the gain");
+        assert_eq!((lost.gain, b.agent().gain()), (best.gain, best.gain));
+        assert_eq!(b.agent().safety().rollbacks, 1);
+        // An evaluation that loses the cable: a failure whatever its return, the best stays.
+        let (failed, _) = trial(&mut b, &mut seq, 2, 3, StepStatus::Lost, calm);
+        assert!(
+            failed.evaluated > best.evaluated,
+            "a short trial costs less"
+        );
+        assert_eq!(b.agent().safety().best, Some(best));
+        assert_eq!(b.agent().gain(), best.gain);
+    }
+
+    /// In a learning trial, the position leaving the safety envelope (80% of the observation box)
+    /// restores the best policy at once; the trial goes on with it, learning nothing more.
+    #[test]
+    fn leaving_the_safety_envelope_restores_the_best_policy_mid_trial() {
+        let mut b = step_two_sway();
+        let mut seq = 0;
+        let calm = |t: u32| 0.1 * (0.4 * t as f64).sin();
+        trial(&mut b, &mut seq, 0, 20, StepStatus::TimeLimit, calm);
+        let best = b.agent().safety().best.unwrap();
+        // Calm for 15 steps (learning moves the gain), then out to 0.45 > 0.8 x 0.5.
+        let wide = |t: u32| if t < 15 { calm(t) } else { 0.45 };
+        let mut seen = Vec::new();
+        for step in 0..=20 {
+            let status = if step == 20 {
+                StepStatus::TimeLimit
+            } else {
+                StepStatus::Running
+            };
+            let mut o = obs(seq, 1, step, status, true);
+            o.observation.x_g = wide(step);
+            seq += 1;
+            b.step(&o);
+            seen.push((b.agent().gain(), b.agent().is_learning()));
+        }
+        assert_ne!(seen[14].0, best.gain, "learning moved the gain");
+        assert!(seen[14].1);
+        for (gain, learning) in &seen[15..] {
+            assert_eq!((*gain, *learning), (best.gain, false));
+        }
+        assert_eq!(b.agent().safety().rollbacks, 1);
+        // The next learning trial learns again.
+        trial(&mut b, &mut seq, 2, 5, StepStatus::TimeLimit, calm);
+        trial(&mut b, &mut seq, 3, 5, StepStatus::TimeLimit, calm);
+        assert!(b.agent().is_learning());
     }
 
     #[test]

@@ -494,6 +494,15 @@ mod tests {
     }
 
     #[test]
+    fn the_harsh_cross_twin_is_the_harsh_one_with_the_current_across_the_cable() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        let t: TwinParams = crate::load(&dir.join("twin-harsh-cross.toml")).unwrap();
+        let mut want: TwinParams = crate::load(&dir.join("twin-harsh.toml")).unwrap();
+        want.current.direction_deg = 90.0;
+        assert_eq!(t, want);
+    }
+
+    #[test]
     fn defaults_are_valid_and_harsher_than_the_simulators_images() {
         TwinParams::default().validate("").unwrap();
         TwinParams::ideal().validate("").unwrap();

@@ -452,6 +452,11 @@ impl Agent {
         self.pending = None;
     }
 
+    /// The observation box `|x_i| <= state_max[i]`.
+    pub fn state_max(&self) -> [f64; 2] {
+        self.state_max
+    }
+
     /// The policy gain `K` for (position, rate).
     pub fn gain(&self) -> [f64; 2] {
         self.policy.gain.into()

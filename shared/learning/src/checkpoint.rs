@@ -19,7 +19,9 @@
 //!
 //! - version 1: no step-two parameters (`LearningParams::evaluation`, `safety`) and no safety state
 //!   in an agent's state; read with their defaults (nothing evaluated, nothing refused yet).
-//! - version 2: the current format.
+//! - version 2: no count of the lost trials of the evaluation in progress
+//!   (`SafetyState::evaluation_lost`); read as none lost.
+//! - version 3: the current format.
 //!
 //! Saving writes a temporary file in the target's directory, syncs it, renames it over the target and
 //! syncs the directory: a crash leaves either the old checkpoint or the new one, never a mix.
@@ -36,7 +38,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// The first bytes of every checkpoint file.
 pub const MAGIC: [u8; 8] = *b"CTRKCKPT";
 /// The format this code writes, and the newest it reads.
-pub const FORMAT_VERSION: u32 = 2;
+pub const FORMAT_VERSION: u32 = 3;
 /// Magic, version, payload length, CRC.
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 4;
 
@@ -431,6 +433,11 @@ impl Checkpoint {
                 bincode::serde::decode_from_slice(&payload, bincode::config::standard())
                     .map_err(decode_err)?;
             (old.into(), used)
+        } else if version == 2 {
+            let (old, used): (v2::Checkpoint, usize) =
+                bincode::serde::decode_from_slice(&payload, bincode::config::standard())
+                    .map_err(decode_err)?;
+            (old.into(), used)
         } else {
             bincode::serde::decode_from_slice(&payload, bincode::config::standard())
                 .map_err(decode_err)?
@@ -537,6 +544,79 @@ mod v1 {
                 steps: s.steps,
                 episodes: s.episodes,
                 safety: Default::default(),
+            }
+        }
+    }
+
+    impl From<Checkpoint> for super::Checkpoint {
+        fn from(c: Checkpoint) -> Self {
+            super::Checkpoint {
+                sway: c.sway.map(Into::into),
+                yaw: c.yaw.map(Into::into),
+            }
+        }
+    }
+}
+
+/// The payload of format version 2 (see the module docs), read into the current types.
+mod v2 {
+    use super::{LearnerState, PolicyState};
+    use crate::safety::BestPolicy;
+    use config::{Dof, LearningParams, QuadraticCost};
+    use serde::{Deserialize, Serialize};
+
+    #[derive(Serialize, Deserialize)]
+    pub struct Checkpoint {
+        pub sway: Option<AgentState>,
+        pub yaw: Option<AgentState>,
+    }
+
+    #[derive(Serialize, Deserialize)]
+    pub struct AgentState {
+        pub dof: Dof,
+        pub params: LearningParams,
+        pub cost: QuadraticCost,
+        pub state_max: [f64; 2],
+        pub policy: PolicyState,
+        pub learner: LearnerState,
+        pub steps: u64,
+        pub episodes: u64,
+        pub safety: SafetyState,
+    }
+
+    #[derive(Clone, Copy, Serialize, Deserialize)]
+    pub struct SafetyState {
+        pub bounded: u64,
+        pub refused: u64,
+        pub rollbacks: u64,
+        pub evaluations: u64,
+        pub best: Option<BestPolicy>,
+        pub evaluation_sum: f64,
+        pub evaluation_trials: u32,
+    }
+
+    impl From<AgentState> for super::AgentState {
+        fn from(s: AgentState) -> Self {
+            let f = s.safety;
+            super::AgentState {
+                dof: s.dof,
+                params: s.params,
+                cost: s.cost,
+                state_max: s.state_max,
+                policy: s.policy,
+                learner: s.learner,
+                steps: s.steps,
+                episodes: s.episodes,
+                safety: crate::safety::SafetyState {
+                    bounded: f.bounded,
+                    refused: f.refused,
+                    rollbacks: f.rollbacks,
+                    evaluations: f.evaluations,
+                    best: f.best,
+                    evaluation_sum: f.evaluation_sum,
+                    evaluation_trials: f.evaluation_trials,
+                    evaluation_lost: 0,
+                },
             }
         }
     }
@@ -933,11 +1013,63 @@ mod tests {
         assert_eq!(Checkpoint::load(&path).unwrap(), now);
     }
 
+    /// A file of format 2 (before the count of lost evaluation trials) still loads, its safety
+    /// state as saved and no evaluation trial lost.
+    #[test]
+    fn a_format_2_checkpoint_loads_with_no_lost_evaluation_trial() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.ckpt");
+        let mut now = both();
+        let safety = crate::safety::SafetyState {
+            rollbacks: 3,
+            evaluations: 4,
+            best: Some(crate::safety::BestPolicy {
+                gain: [1.0, 2.0],
+                evaluated: -3.5,
+            }),
+            evaluation_sum: -7.0,
+            evaluation_trials: 2,
+            ..Default::default()
+        };
+        now.sway.as_mut().unwrap().safety = safety;
+        let old = |s: &AgentState| v2::AgentState {
+            dof: s.dof,
+            params: s.params.clone(),
+            cost: s.cost,
+            state_max: s.state_max,
+            policy: s.policy,
+            learner: s.learner.clone(),
+            steps: s.steps,
+            episodes: s.episodes,
+            safety: v2::SafetyState {
+                bounded: s.safety.bounded,
+                refused: s.safety.refused,
+                rollbacks: s.safety.rollbacks,
+                evaluations: s.safety.evaluations,
+                best: s.safety.best,
+                evaluation_sum: s.safety.evaluation_sum,
+                evaluation_trials: s.safety.evaluation_trials,
+            },
+        };
+        let file = v2::Checkpoint {
+            sway: now.sway.as_ref().map(old),
+            yaw: now.yaw.as_ref().map(old),
+        };
+        let payload = bincode::serde::encode_to_vec(&file, bincode::config::standard()).unwrap();
+        let mut bytes = MAGIC.to_vec();
+        bytes.extend_from_slice(&2u32.to_le_bytes());
+        bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        bytes.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
+        bytes.extend_from_slice(&payload);
+        fs::write(&path, bytes).unwrap();
+        assert_eq!(Checkpoint::load(&path).unwrap(), now);
+    }
+
     #[test]
     fn the_header_is_the_documented_layout() {
         let (_dir, _path, bytes) = saved_bytes();
         assert_eq!(&bytes[..8], b"CTRKCKPT");
-        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 2);
+        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 3);
         let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
         assert_eq!(len as usize, bytes.len() - HEADER_LEN);
         let crc = u32::from_le_bytes(bytes[20..24].try_into().unwrap());

@@ -12,7 +12,11 @@
 //!   already outside (a simulation policy can be) may only move towards the set.
 //! - [`KeepBest`]: after every evaluation the policy's evaluated return is compared with the best
 //!   so far; worse by more than a tolerance, the best policy is restored (a conservative rollback to
-//!   the best known baseline, as safe policy improvement with a baseline does).
+//!   the best known baseline, as safe policy improvement with a baseline does). A policy under which
+//!   the cable was lost has failed whatever its return: the best is restored at once (a trial that
+//!   loses the cable ends early, which can cost a DOF less than tracking badly for the whole trial,
+//!   so the return alone would rank such a policy above a safe one), and the best is always a policy
+//!   whose evaluation kept the cable in every trial.
 //!
 //! [`UpdateGuard`] applies the first two to each actor update; [`SafetyState`] is what a checkpoint
 //! keeps of all three (counts and the best policy), so a restarted behaviour goes on where it was.
@@ -190,6 +194,13 @@ pub enum Verdict {
         /// The policy to restore.
         best: BestPolicy,
     },
+    /// The cable was lost in some trial of the evaluation: the policy is not a candidate for the
+    /// best whatever its return, and the best (if one was evaluated, and rollback is on) is
+    /// restored.
+    Failed {
+        /// The policy to restore, if any.
+        best: Option<BestPolicy>,
+    },
 }
 
 /// Keep the best: judges each evaluated policy against the best so far (see the module docs).
@@ -209,8 +220,16 @@ impl KeepBest {
 
     /// Judges `gain`, evaluated at `evaluated`, against the best in `state` (updated: the best, the
     /// counts).
+    /// An evaluation in which the cable was lost ([`SafetyState::evaluation_lost`]) is
+    /// [`Verdict::Failed`].
     pub fn judge(&self, state: &mut SafetyState, gain: [f64; 2], evaluated: f64) -> Verdict {
         state.evaluations += 1;
+        if state.evaluation_lost > 0 {
+            // Restored, and counted, when the cable was lost (see `fall_back`).
+            return Verdict::Failed {
+                best: self.restorable(state),
+            };
+        }
         let Some(best) = state.best.filter(|b| b.evaluated.is_finite()) else {
             state.best = Some(BestPolicy { gain, evaluated });
             return Verdict::Best;
@@ -226,6 +245,21 @@ impl KeepBest {
             }
             _ => Verdict::Kept { best },
         }
+    }
+
+    /// The cable was lost under the policy in force: the best policy to restore at once (counted
+    /// as a rollback), or `None` when none was evaluated yet or rollback is off.
+    pub fn fall_back(&self, state: &mut SafetyState) -> Option<BestPolicy> {
+        let best = self.restorable(state)?;
+        state.rollbacks += 1;
+        Some(best)
+    }
+
+    /// The best policy, when there is one and rollback is on.
+    fn restorable(&self, state: &SafetyState) -> Option<BestPolicy> {
+        state
+            .best
+            .filter(|b| b.evaluated.is_finite() && self.tolerance.is_some())
     }
 }
 
@@ -245,8 +279,10 @@ pub struct SafetyState {
     pub best: Option<BestPolicy>,
     /// The evaluation in progress: the sum of its trials' returns...
     pub evaluation_sum: f64,
-    /// ... and their number.
+    /// ... and their number, ...
     pub evaluation_trials: u32,
+    /// ... and those of them that lost the cable.
+    pub evaluation_lost: u32,
 }
 
 impl SafetyState {
@@ -381,5 +417,42 @@ mod tests {
             Verdict::Kept { best }
         );
         assert_eq!(t.rollbacks, 1);
+    }
+
+    /// A lost cable fails the policy whatever its return: it never becomes the best, and the best is
+    /// restored (when rollback is on and a best exists).
+    #[test]
+    fn a_lost_cable_fails_the_policy_whatever_its_return() {
+        let judge = KeepBest::new(Some(0.1));
+        let mut s = SafetyState::default();
+        // Nothing evaluated yet: nothing to fall back to.
+        assert_eq!(judge.fall_back(&mut s), None);
+        s.evaluation_lost = 1;
+        assert_eq!(
+            judge.judge(&mut s, [1.0, 0.0], -10.0),
+            Verdict::Failed { best: None }
+        );
+        assert_eq!((s.best, s.rollbacks), (None, 0));
+        s.evaluation_lost = 0;
+        assert_eq!(judge.judge(&mut s, [2.0, 0.0], -10.0), Verdict::Best);
+        let best = s.best.unwrap();
+        // The cable lost under another policy: the best, to restore at once, counted.
+        assert_eq!(judge.fall_back(&mut s), Some(best));
+        assert_eq!(s.rollbacks, 1);
+        // A better return (its trials ended early), but the cable was lost: the best again (its
+        // restoring was counted when the cable was lost).
+        s.evaluation_lost = 2;
+        assert_eq!(
+            judge.judge(&mut s, [3.0, 0.0], -5.0),
+            Verdict::Failed { best: Some(best) }
+        );
+        assert_eq!((s.best, s.rollbacks), (Some(best), 1));
+        // Rollback off: judged, never restored.
+        assert_eq!(
+            KeepBest::new(None).judge(&mut s, [3.0, 0.0], -5.0),
+            Verdict::Failed { best: None }
+        );
+        assert_eq!(KeepBest::new(None).fall_back(&mut s), None);
+        assert_eq!((s.best, s.rollbacks), (Some(best), 1));
     }
 }

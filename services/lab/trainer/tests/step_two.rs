@@ -150,6 +150,84 @@ fn step_two_closes_the_gap_on_the_harsh_twin_and_never_leaves_a_seed_worse() {
     assert_eq!(verdict.lost, 0, "no trial loses the cable");
 }
 
+/// Over several seeds on the harsh twin with the current across the cable (ideal perception): no
+/// trial of any session loses the cable, nor does any seed's final policy on a set of starts it never
+/// learned on, and step two still closes most of the gap. (Before a lost cable counted as a failed
+/// policy, seed 3 lost it in 18 of its 45 trials: its sway learner lowered the rate gain until the
+/// lagging, late sway loop swung the cable out of the image, and since a trial cut short costs sway
+/// less than 90 s of poor tracking, keeping the best kept the policy that lost it.)
+#[test]
+fn no_trial_loses_the_cable_on_the_harsh_twin_with_a_cross_current() {
+    let s = setup();
+    let cross = twin("twin-harsh-cross.toml");
+    assert_eq!(cross.current.direction_deg, 90.0);
+    let limit_gains = search(
+        &s.scenario,
+        &s.learning,
+        &cross,
+        experiment::lqr_gains(&s).unwrap(),
+        &SearchParams {
+            eyes: Eyes::Ideal,
+            ..SearchParams::default()
+        },
+        &trainer::progress::Progress::hidden(),
+    )
+    .unwrap()
+    .gains;
+    let limit = policy_checkpoint(&s.scenario, &s.learning, limit_gains);
+    let params = BenchParams {
+        seeds: (1..=8).collect(),
+        trials: 20,
+        sim_episodes: 100,
+        eyes: Eyes::Ideal,
+        held_out: 0,
+        every_trial: false,
+    };
+    let results = run(
+        &s.scenario,
+        &s.learning,
+        &cross,
+        &limit,
+        &params,
+        &trainer::progress::Progress::hidden(),
+    )
+    .unwrap();
+    print!("{}", trainer::step_two_bench::table(&results, &params));
+    let verdict = summary(&results);
+    let e = s.learning.evaluation.trials;
+    for r in &results {
+        // The worst seed: not one trial (learning or evaluation) lost the cable.
+        assert_eq!(r.lost, 0, "seed {}: trials that lost the cable", r.seed);
+        let after = policy_checkpoint(&s.scenario, &s.learning, r.after_gains);
+        let held_out = config::derive_seed(r.seed, "held-out/0");
+        let other = evaluate(&s.scenario, &cross, Eyes::Ideal, &after, held_out, e).unwrap();
+        assert_eq!(
+            other.lost, 0,
+            "seed {}: the final policy loses the cable on other starts",
+            r.seed
+        );
+    }
+    assert_eq!(verdict.lost, 0);
+    for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
+        // Measured on these 8 seeds (the limit searched here): median gap closed 63% for yaw
+        // (seeds 22% to 90%) and 99% for sway; the README's 12 seeds: 58% and 100%. The bound 50%
+        // is the target, which the yaw median clears by 13 points.
+        assert!(
+            d.median_gap_closed >= 0.5,
+            "{dof}: median gap closed {}",
+            d.median_gap_closed
+        );
+        for r in &results {
+            assert!(
+                *r.gap_closed.get(dof) >= 0.0,
+                "seed {}: {dof} gap closed {}",
+                r.seed,
+                r.gap_closed.get(dof)
+            );
+        }
+    }
+}
+
 /// An evaluation of step two's session is the protocol: the session's first evaluation (before any
 /// learning) gives the returns of the simulation policy evaluated on its own, bit for bit, and so
 /// does an evaluation after learning for the policy it evaluated.
@@ -308,7 +386,8 @@ fn a_destabilising_update_is_refused() {
 
 /// Keeping the best: with long actor steps and no guard, some evaluation of every seed finds the
 /// learned policy worse than the best beyond the tolerance; the policy then in force is the best one,
-/// which the protocol, evaluating it alone, scores exactly at the best return.
+/// which the protocol, evaluating it alone (with the other DOF's policy of the best's evaluation),
+/// scores exactly at the best return.
 #[test]
 fn a_rollback_restores_the_best_policy() {
     let s = setup();
@@ -327,7 +406,13 @@ fn a_rollback_restores_the_best_policy() {
                 restored += 1;
                 let (before, after) = (*run[t - 1].gains.get(dof), *trial.gains.get(dof));
                 assert_ne!(before, after, "seed {seed} {dof}: the policy was replaced");
-                let mut gains = trial.gains;
+                // The best was evaluated along with the other DOF's policy of its evaluation (the
+                // other DOF may have moved since): evaluated with that one again.
+                let c = (0..t)
+                    .rev()
+                    .find(|&c| run[c].evaluated.get(dof).to_bits() == trial.best.get(dof).to_bits())
+                    .expect("the best was evaluated before");
+                let mut gains = run[c - 1].gains;
                 *gains.get_mut(dof) = after;
                 let alone = evaluate(
                     &s.scenario,
