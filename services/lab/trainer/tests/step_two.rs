@@ -22,6 +22,44 @@ fn twin(file: &str) -> TwinParams {
     config::load(&testkit::config_dir().join(file)).unwrap()
 }
 
+/// Step two over seeds 1 to 8 on `twin` (ideal perception, 20 learning trials each), against the
+/// twin's limit searched first; the table is printed.
+fn eight_seeds(s: &Setup, twin: &TwinParams) -> Vec<trainer::step_two_bench::SeedResult> {
+    let limit_gains = search(
+        &s.scenario,
+        &s.learning,
+        twin,
+        experiment::lqr_gains(s).unwrap(),
+        &SearchParams {
+            eyes: Eyes::Ideal,
+            ..SearchParams::default()
+        },
+        &trainer::progress::Progress::hidden(),
+    )
+    .unwrap()
+    .gains;
+    let limit = policy_checkpoint(&s.scenario, &s.learning, limit_gains);
+    let params = BenchParams {
+        seeds: (1..=8).collect(),
+        trials: 20,
+        sim_episodes: 100,
+        eyes: Eyes::Ideal,
+        held_out: 0,
+        every_trial: false,
+    };
+    let results = run(
+        &s.scenario,
+        &s.learning,
+        twin,
+        &limit,
+        &params,
+        &trainer::progress::Progress::hidden(),
+    )
+    .unwrap();
+    print!("{}", trainer::step_two_bench::table(&results, &params));
+    results
+}
+
 /// The search, from a quarter of the LQR gains, on the twin with its reality gap off (the identified model),
 /// comes back to the LQR gain: the same evaluated return, and gains within the flat directions of
 /// the undiscounted trial return.
@@ -94,38 +132,7 @@ fn the_limit_search_finds_the_lqr_gain_with_the_gap_off() {
 fn step_two_closes_the_gap_on_the_harsh_twin_and_never_leaves_a_seed_worse() {
     let s = setup();
     let harsh = twin("twin-harsh.toml");
-    let limit_gains = search(
-        &s.scenario,
-        &s.learning,
-        &harsh,
-        experiment::lqr_gains(&s).unwrap(),
-        &SearchParams {
-            eyes: Eyes::Ideal,
-            ..SearchParams::default()
-        },
-        &trainer::progress::Progress::hidden(),
-    )
-    .unwrap()
-    .gains;
-    let limit = policy_checkpoint(&s.scenario, &s.learning, limit_gains);
-    let params = BenchParams {
-        seeds: (1..=8).collect(),
-        trials: 20,
-        sim_episodes: 100,
-        eyes: Eyes::Ideal,
-        held_out: 0,
-        every_trial: false,
-    };
-    let results = run(
-        &s.scenario,
-        &s.learning,
-        &harsh,
-        &limit,
-        &params,
-        &trainer::progress::Progress::hidden(),
-    )
-    .unwrap();
-    print!("{}", trainer::step_two_bench::table(&results, &params));
+    let results = eight_seeds(&s, &harsh);
     let verdict = summary(&results);
     for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
         // The README's benchmark (12 seeds, ideal perception) has a median gap closed of 65% for
@@ -161,38 +168,7 @@ fn no_trial_loses_the_cable_on_the_harsh_twin_with_a_cross_current() {
     let s = setup();
     let cross = twin("twin-harsh-cross.toml");
     assert_eq!(cross.current.direction_deg, 90.0);
-    let limit_gains = search(
-        &s.scenario,
-        &s.learning,
-        &cross,
-        experiment::lqr_gains(&s).unwrap(),
-        &SearchParams {
-            eyes: Eyes::Ideal,
-            ..SearchParams::default()
-        },
-        &trainer::progress::Progress::hidden(),
-    )
-    .unwrap()
-    .gains;
-    let limit = policy_checkpoint(&s.scenario, &s.learning, limit_gains);
-    let params = BenchParams {
-        seeds: (1..=8).collect(),
-        trials: 20,
-        sim_episodes: 100,
-        eyes: Eyes::Ideal,
-        held_out: 0,
-        every_trial: false,
-    };
-    let results = run(
-        &s.scenario,
-        &s.learning,
-        &cross,
-        &limit,
-        &params,
-        &trainer::progress::Progress::hidden(),
-    )
-    .unwrap();
-    print!("{}", trainer::step_two_bench::table(&results, &params));
+    let results = eight_seeds(&s, &cross);
     let verdict = summary(&results);
     let e = s.learning.evaluation.trials;
     for r in &results {
