@@ -176,11 +176,14 @@ pub mod health {
     use super::Endpoint;
     use std::time::Duration;
 
-    /// How often a process notifies its heartbeat, input or not.
-    pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(50);
-    /// The event service's deadline: five periods, so a process that is descheduled for a moment
-    /// on a loaded machine is not taken for stuck, and a stuck one is found within a quarter second.
-    pub const HEARTBEAT_DEADLINE: Duration = Duration::from_millis(250);
+    /// The longest a process goes without notifying its heartbeat. A process beats from whatever
+    /// wakes it (at most every half period), so only an idle process wakes for a beat; longer than
+    /// the vehicle's 200 ms step, so a process with steps to do never does.
+    pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(250);
+    /// The event service's deadline: a beat may come 50 ms late (a process descheduled on a loaded
+    /// machine) before a deadline is missed; the supervisor waits for two in a row (600 ms of
+    /// silence) before it calls a service stuck.
+    pub const HEARTBEAT_DEADLINE: Duration = Duration::from_millis(300);
     /// The process itself, and its restarted successor while the stuck one is being removed; the
     /// shore link's notifier when the heartbeat is bridged.
     pub const MAX_NOTIFIERS: usize = 4;
@@ -358,7 +361,9 @@ mod tests {
             health::service_name(Endpoint::Vehicle, "perception"),
             "cabletrack/vehicle/heartbeat/perception"
         );
-        assert!(health::HEARTBEAT_DEADLINE >= 4 * health::HEARTBEAT_PERIOD);
+        assert!(health::HEARTBEAT_DEADLINE > health::HEARTBEAT_PERIOD);
+        // A stuck service is replaced within a second: two deadlines, the supervisor's look, a start.
+        assert!(2 * health::HEARTBEAT_DEADLINE <= std::time::Duration::from_millis(600));
     }
 
     #[test]

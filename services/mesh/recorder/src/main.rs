@@ -1,6 +1,7 @@
 //! `recorder`: the mesh's flight recorder. Subscribes to every topic of its endpoint with the
-//! recorder's own buffers (`messages::Tap`), drains them every 10 ms (and on the supervisor's events),
-//! writes what it drained into the MCAP record, flushes it every
+//! recorder's own buffers (`messages::Tap`), drains them 10 ms after a step's thruster setpoints
+//! or the supervisor's events wake it, writes what it drained into the MCAP
+//! record, flushes it every
 //! second and publishes its progress; SIGTERM or SIGINT drains once more and closes the file with its
 //! index. With `--live` the same channels are served to a viewer.
 
@@ -46,9 +47,10 @@ struct Args {
     live: Option<SocketAddr>,
 }
 
-/// The recorder drains its taps this often rather than on every step: a wake-up per step costs the
-/// mesh more than the recording (the accelerated sim mesh runs thousands of steps a second). Each tap
-/// holds at least 32 messages (`Qos::recorder_buffer`), so nothing is lost below 3,200 steps/s.
+/// The recorder drains its taps this long after a step's last message wakes it: at the vehicle's
+/// 5 Hz once per step, after the step is done; the accelerated sim mesh's thousands of steps a second
+/// in batches, since a wake-up per step would cost the mesh more than the recording. Each
+/// tap holds at least 32 messages (`Qos::recorder_buffer`), so nothing is lost below 3,200 steps/s.
 const DRAIN_EVERY: Duration = Duration::from_millis(10);
 
 fn main() -> ExitCode {
@@ -122,8 +124,9 @@ impl Taps {
 
 fn record(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     let taps = Taps::open(rt)?;
-    // The supervisor's events wake it, so a restart is recorded when it happens; the rest is drained
-    // every DRAIN_EVERY.
+    // A step's thruster setpoints (its last message) wake it, and the supervisor's events, so a
+    // restart is recorded when it happens.
+    let step_done = rt.listener(&topics::THRUSTER_SETPOINTS)?;
     let event = rt.listener(&topics::SUPERVISOR_EVENTS)?;
     let status_out = rt.outbox(&topics::RECORDER_STATUS)?;
     let metadata = BTreeMap::from([
@@ -169,7 +172,12 @@ fn record(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     let flush_every = Duration::from_millis(args.flush_ms.max(1));
     let mut last_flush = Instant::now();
     let mut last_progress = Instant::now();
-    let served = rt.serve(&[&event], Timer::Interval(DRAIN_EVERY), |_| {
+    // The timeout flushes and publishes progress while no step runs.
+    let served = rt.serve(&[&step_done, &event], Timer::Timeout(flush_every), |_| {
+        // Batching, not waiting for anything (what arrives meanwhile stays in the taps' buffers), and
+        // out of the step's way: the drain, which copies and compresses a frame, starts after the
+        // setpoints have reached the thrusters (a millisecond or two).
+        std::thread::sleep(DRAIN_EVERY);
         taps.drain(&mut rec)?;
         if last_flush.elapsed() >= flush_every {
             last_flush = Instant::now();
