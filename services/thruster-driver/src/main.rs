@@ -12,6 +12,10 @@ use runtime::lockstep::{Screen, ScreenLimits};
 use runtime::{BadValues, CommonArgs, Runtime, Watch};
 use std::process::ExitCode;
 use std::time::Duration;
+
+/// How much before the deadline the driver acts on it: a wait's timeout ends up to a millisecond
+/// late, and a failsafe that errs should err early.
+const EARLY: Duration = Duration::from_millis(2);
 use thruster_driver::{Driver, SinkSpec, Taken};
 
 #[derive(Parser)]
@@ -108,11 +112,15 @@ fn main() -> ExitCode {
                     allocator_seen = false;
                 }
             }
-            if driver.on_time(clock.now_ns())?.is_some() {
+            // The wait ends up to a millisecond late (its timeout's resolution, the wake-up's
+            // latency): setpoints with less than EARLY left count as stale now, so the thrusters stop
+            // within the deadline, never after it.
+            if driver.on_time(clock.now_ns() + EARLY.as_nanos() as u64)?.is_some() {
                 tracing::warn!(cause = "deadline", deadline_ms = deadline.as_millis() as u64, "thrusters stopped: no fresh setpoints within the deadline");
             }
-            // Woken again at the deadline of the setpoints held, to the nanosecond the wait allows.
-            Ok(Some(driver.time_left(clock.now_ns()).unwrap_or(deadline)))
+            // Woken again EARLY before the setpoints held go stale.
+            let left = driver.time_left(clock.now_ns()).unwrap_or(deadline);
+            Ok(Some(left.saturating_sub(EARLY)))
         });
         let closed = driver.shutdown();
         match &closed {
