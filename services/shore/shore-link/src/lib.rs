@@ -219,27 +219,29 @@ pub fn back_after(shore: &[Arrival], link_up_ns: u64) -> Option<f64> {
 }
 
 /// Steps the vehicle missed while the shore watched (from the first to the last observation the shore
-/// received): steps whose setpoints lacked a command, and step numbers the setpoints skipped.
-/// `steps` are the vehicle's setpoints in order, as (seq, commands missing). Start-up and the stop
-/// are outside the window: the link is not running then.
-pub fn steps_missed(steps: &[(u64, u64)], shore: &[Arrival]) -> u64 {
+/// received): frames that reached the vehicle but were answered by no setpoints, and setpoints that
+/// lacked a command. `frames` are the frames' step numbers; `steps` the vehicle's setpoints, as (seq,
+/// commands missing). A frame lost before the vehicle (the twin drops some, as a real link does) is
+/// no step of the vehicle's. Start-up and the stop are outside the window: the link is not running
+/// then.
+pub fn steps_missed(frames: &[u64], steps: &[(u64, u64)], shore: &[Arrival]) -> u64 {
     let (Some(first), Some(last)) = (
         shore.iter().map(|a| a.seq).min(),
         shore.iter().map(|a| a.seq).max(),
     ) else {
         return 0;
     };
-    let inside: Vec<(u64, u64)> = steps
+    let window = first..=last;
+    let answered: std::collections::BTreeSet<u64> = steps.iter().map(|&(seq, _)| seq).collect();
+    let unanswered = frames
         .iter()
-        .copied()
-        .filter(|(seq, _)| (first..=last).contains(seq))
-        .collect();
-    let incomplete = inside.iter().filter(|(_, m)| *m != 0).count() as u64;
-    let skipped: u64 = inside
-        .windows(2)
-        .map(|w| w[1].0.saturating_sub(w[0].0 + 1))
-        .sum();
-    incomplete + skipped
+        .filter(|seq| window.contains(seq) && !answered.contains(seq))
+        .count() as u64;
+    let incomplete = steps
+        .iter()
+        .filter(|(seq, missing)| window.contains(seq) && *missing != 0)
+        .count() as u64;
+    unanswered + incomplete
 }
 
 #[cfg(test)]
@@ -274,12 +276,15 @@ mod tests {
 
     #[test]
     fn steps_are_missed_only_inside_the_shores_watch() {
-        let shore = [10, 11, 14].map(|seq| Arrival { seq, at_ns: 0 });
-        // Before the watch: incomplete and skipped steps that do not count.
-        let steps = [(1, 2), (5, 0), (10, 0), (11, 1), (13, 0), (14, 0), (20, 3)];
-        // Step 11 lacked a command, step 12 was skipped.
-        assert_eq!(steps_missed(&steps, &shore), 2);
-        assert_eq!(steps_missed(&steps, &[]), 0);
+        let shore = [10, 11, 15].map(|seq| Arrival { seq, at_ns: 0 });
+        // Frame 13 never reached the vehicle; frame 4, before the watch, was not answered either.
+        let frames = [1, 4, 5, 10, 11, 12, 14, 15, 20];
+        let steps = [(1, 2), (5, 0), (10, 0), (11, 1), (14, 0), (15, 0), (20, 3)];
+        // Inside the watch, step 11 lacked a command and frame 12 was not answered.
+        assert_eq!(steps_missed(&frames, &steps, &shore), 2);
+        assert_eq!(steps_missed(&frames, &steps, &[]), 0);
+        // The same steps with no frame lost or unanswered: only step 11 is missed.
+        assert_eq!(steps_missed(&[10, 11, 14, 15], &steps, &shore), 1);
     }
 
     #[test]

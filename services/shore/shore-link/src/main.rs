@@ -328,6 +328,7 @@ fn names(list: &[(String, messages::Qos)]) -> Vec<&str> {
 /// Records the vehicle's own traffic for the demo's report.
 struct Recorder {
     _node: Node<ipc::Service>,
+    frames: messages::FrameInbox,
     observations: Inbox<messages::CableObservationMsg>,
     setpoints: Inbox<messages::ThrusterSetpoints>,
     out: std::io::BufWriter<std::fs::File>,
@@ -337,6 +338,7 @@ impl Recorder {
     fn open(cfg: &IoxConfig, endpoint: Endpoint, path: &std::path::Path) -> Result<Recorder> {
         let node = node(cfg, "shore-link-record")?;
         Ok(Recorder {
+            frames: messages::FrameInbox::open(&node, endpoint)?,
             observations: Inbox::open(&node, endpoint, &topics::CABLE_OBSERVATION)?,
             setpoints: Inbox::open(&node, endpoint, &topics::THRUSTER_SETPOINTS)?,
             _node: node,
@@ -348,6 +350,14 @@ impl Recorder {
     }
 
     fn take(&mut self) -> Result<()> {
+        // The steps the vehicle had to take: the frames that reached it (the twin loses some on
+        // purpose, and those are nobody's miss).
+        while let Some(seq) = self.frames.receive_with(|h, _| h.stamp.seq)? {
+            line(
+                &mut self.out,
+                &serde_json::json!({ "frame": { "seq": seq } }),
+            )?;
+        }
         for o in self.observations.drain()? {
             let a = Arrival {
                 seq: o.stamp.seq,
@@ -625,6 +635,10 @@ fn report(
             Some((s.get("seq")?.as_u64()?, s.get("missing")?.as_u64()?))
         })
         .collect();
+    let frames: Vec<u64> = v
+        .iter()
+        .filter_map(|l| l.get("frame")?.get("seq")?.as_u64())
+        .collect();
     let summary = s
         .iter()
         .find_map(|l| l.get("summary").cloned())
@@ -637,7 +651,7 @@ fn report(
         sent,
         received_on_shore,
         latency_ms,
-        vehicle_steps_missed: shore_link::steps_missed(&steps, &sa),
+        vehicle_steps_missed: shore_link::steps_missed(&frames, &steps, &sa),
         shore_back_after_s: link_up_ns.and_then(|t| shore_link::back_after(&sa, t)),
         outside_allow_list_seen: outside,
         stop_obeyed,
