@@ -1,9 +1,8 @@
 //! `recorder`: the mesh's flight recorder. Subscribes to every topic of its endpoint with the
 //! recorder's own buffers (`messages::Tap`), drains them 10 ms after a step's thruster setpoints
-//! or the supervisor's events wake it, writes what it drained into the MCAP
-//! record, flushes it every
-//! second and publishes its progress; SIGTERM or SIGINT drains once more and closes the file with its
-//! index. With `--live` the same channels are served to a viewer.
+//! or the supervisor's events wake it, writes what it drained into the MCAP record, flushes it
+//! every second and publishes its progress; SIGTERM or SIGINT drains once more and closes the file
+//! with its index. With `--live` the same channels are served to a viewer.
 
 use clap::Parser;
 use config::Dof;
