@@ -27,6 +27,119 @@ pub struct Spawn {
     stdout: Option<Stdio>,
     die_with_parent: bool,
     ready_pipe: bool,
+    placement: Placement,
+}
+
+/// Where and how the scheduler runs a process: its scheduling class and the CPUs it may run on.
+/// Set before the program starts (every thread it makes inherits it).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Placement {
+    pub scheduling: Scheduling,
+    /// The CPUs it may run on (empty: any).
+    pub cpus: Vec<usize>,
+}
+
+/// A process's scheduling class.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Scheduling {
+    /// The normal time-sharing class (`SCHED_OTHER`).
+    #[default]
+    Normal,
+    /// Runs only on a CPU nothing else wants (`SCHED_IDLE`): background work, such as the flight
+    /// recorder's compression, that must never delay the loop; any other process that wakes takes
+    /// the CPU from it at once.
+    Idle,
+}
+
+impl std::str::FromStr for Scheduling {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "normal" => Ok(Scheduling::Normal),
+            "idle" => Ok(Scheduling::Idle),
+            other => Err(format!("`{other}` is not `normal` or `idle`")),
+        }
+    }
+}
+
+/// A list of CPUs as `taskset -c` writes it: `0`, `0,2`, `0-3`, `0-1,3`; empty: none.
+pub fn parse_cpus(text: &str) -> Result<Vec<usize>, String> {
+    let mut cpus = Vec::new();
+    for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let num = |t: &str| {
+            t.trim()
+                .parse::<usize>()
+                .map_err(|_| format!("`{t}` in `{text}` is not a CPU number"))
+        };
+        match part.split_once('-') {
+            Some((a, b)) => {
+                let (a, b) = (num(a)?, num(b)?);
+                if a > b {
+                    return Err(format!("`{part}` in `{text}` is an empty range"));
+                }
+                cpus.extend(a..=b);
+            }
+            None => cpus.push(num(part)?),
+        }
+    }
+    cpus.sort_unstable();
+    cpus.dedup();
+    Ok(cpus)
+}
+
+impl Placement {
+    /// Why this placement cannot be had on this machine (a CPU it does not have).
+    pub fn check(&self) -> Result<(), String> {
+        // SAFETY: sysconf has no preconditions.
+        let online = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) }.max(1) as usize;
+        match self
+            .cpus
+            .iter()
+            .find(|&&c| c >= online || c >= libc::CPU_SETSIZE as usize)
+        {
+            Some(c) => Err(format!(
+                "this machine has CPUs 0 to {}, not {c}",
+                online.saturating_sub(1)
+            )),
+            None => Ok(()),
+        }
+    }
+
+    /// Applies it to the calling thread (in a child before exec: async-signal-safe, no allocation).
+    fn apply(&self, cpus: &libc::cpu_set_t) -> std::io::Result<()> {
+        let policy = match self.scheduling {
+            Scheduling::Normal => None,
+            Scheduling::Idle => Some(libc::SCHED_IDLE),
+        };
+        // SAFETY: plain syscalls on the calling thread with valid pointers.
+        unsafe {
+            if let Some(policy) = policy {
+                let param = libc::sched_param { sched_priority: 0 };
+                if libc::sched_setscheduler(0, policy, &param) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+            }
+            if !self.cpus.is_empty()
+                && libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), cpus) != 0
+            {
+                return Err(std::io::Error::last_os_error());
+            }
+        }
+        Ok(())
+    }
+
+    fn cpu_set(&self) -> libc::cpu_set_t {
+        // SAFETY: an all-zero cpu_set_t is the empty set; CPU_SET stays inside it (checked above).
+        unsafe {
+            let mut set: libc::cpu_set_t = std::mem::zeroed();
+            for &c in &self.cpus {
+                if c < libc::CPU_SETSIZE as usize {
+                    libc::CPU_SET(c, &mut set);
+                }
+            }
+            set
+        }
+    }
 }
 
 impl Spawn {
@@ -45,7 +158,14 @@ impl Spawn {
             stdout: None,
             die_with_parent: false,
             ready_pipe: false,
+            placement: Placement::default(),
         }
+    }
+
+    /// Its scheduling class and CPUs.
+    pub fn placement(mut self, placement: Placement) -> Self {
+        self.placement = placement;
+        self
     }
 
     /// The name logs and errors use (default: the program's file name).
@@ -145,6 +265,14 @@ impl Spawn {
                     libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
                     Ok(())
                 });
+            }
+        }
+        if self.placement != Placement::default() {
+            let placement = self.placement.clone();
+            let cpus = placement.cpu_set();
+            // SAFETY: `apply` makes two syscalls and allocates nothing.
+            unsafe {
+                self.cmd.pre_exec(move || placement.apply(&cpus));
             }
         }
         let inner = self.cmd.spawn()?;
@@ -504,6 +632,63 @@ mod tests {
 
     fn sh(script: &str) -> Spawn {
         Spawn::new("/bin/sh").arg("-c").arg(script)
+    }
+
+    /// The child reports its own scheduling class and CPUs (`/proc/self`), set before it started.
+    #[test]
+    fn a_placement_is_in_force_when_the_program_starts() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let script = format!(
+            "cut -d' ' -f41 /proc/self/stat > {o}; grep Cpus_allowed_list /proc/self/status >> {o}",
+            o = out.display()
+        );
+        let placement = Placement {
+            scheduling: Scheduling::Idle,
+            cpus: vec![0],
+        };
+        assert!(placement.check().is_ok());
+        let mut c = sh(&script).placement(placement).start().unwrap();
+        let status = c.wait_timeout(Duration::from_secs(10)).expect("it exits");
+        assert!(status.success());
+        let text = std::fs::read_to_string(&out).unwrap();
+        let mut lines = text.lines();
+        assert_eq!(
+            lines.next(),
+            Some(libc::SCHED_IDLE.to_string().as_str()),
+            "{text}"
+        );
+        assert_eq!(
+            lines.next().map(|l| l.split_whitespace().last()),
+            Some(Some("0")),
+            "{text}"
+        );
+        // The default leaves both as they were.
+        let mut c = sh(&script).start().unwrap();
+        assert!(
+            c.wait_timeout(Duration::from_secs(10))
+                .expect("it exits")
+                .success()
+        );
+        let text = std::fs::read_to_string(&out).unwrap();
+        assert_eq!(text.lines().next(), Some("0"), "SCHED_OTHER: {text}");
+    }
+
+    #[test]
+    fn placements_are_parsed_and_checked() {
+        assert_eq!(parse_cpus(""), Ok(vec![]));
+        assert_eq!(parse_cpus("0"), Ok(vec![0]));
+        assert_eq!(parse_cpus("3, 0-1,1"), Ok(vec![0, 1, 3]));
+        assert!(parse_cpus("a").unwrap_err().contains("`a`"));
+        assert!(parse_cpus("2-1").unwrap_err().contains("empty range"));
+        assert_eq!("idle".parse(), Ok(Scheduling::Idle));
+        assert_eq!("normal".parse(), Ok(Scheduling::Normal));
+        assert!("fifo".parse::<Scheduling>().unwrap_err().contains("`fifo`"));
+        let far = Placement {
+            cpus: vec![4096],
+            ..Default::default()
+        };
+        assert!(far.check().unwrap_err().contains("not 4096"));
     }
 
     #[test]

@@ -285,10 +285,25 @@ impl Probe {
     }
 }
 
+/// The sim mesh's placement on a machine shared with other meshes: the loop's services on any CPU
+/// (pinned to one, every test's mesh would queue on that CPU), and the flight recorder scheduled
+/// like any process (in the idle class it would fall behind the other tests' meshes and miss steps).
+pub const SHARED_MACHINE: [(&str, &str); 2] =
+    [("loop_cpus", ""), ("recorder_scheduling", "normal")];
+
 /// The `supervisor` running `mesh` (a file of `config/`, or any path) in namespace `ns` with the
 /// experiment's `seed` and `--set KEY=VALUE` for each of `sets`.
+///
+/// Tests run several meshes at once on a machine busy with other tests, so unless `sets` say
+/// otherwise the sim mesh's placement for speed is undone ([`SHARED_MACHINE`]).
 pub fn supervisor(ns: &Namespace, mesh: &Path, seed: u64, sets: &[(&str, String)]) -> Process {
-    let args = supervisor::command_line(mesh, None, seed, &ns.iox, sets);
+    let mut sets = sets.to_vec();
+    for (key, value) in SHARED_MACHINE {
+        if !sets.iter().any(|(k, _)| *k == key) {
+            sets.push((key, value.to_owned()));
+        }
+    }
+    let args = supervisor::command_line(mesh, None, seed, &ns.iox, &sets);
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     Process::start(ns, &binary("supervisor"), &args)
 }

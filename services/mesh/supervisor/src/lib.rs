@@ -16,9 +16,12 @@
 //! name = "recorder"
 //! only_if = "{record}"                  # runs only when this is not empty
 //! observer = true                       # starts first (the others once it is ready), stops last
+//! scheduling = "idle"                   # runs only on a CPU nothing else wants (default "normal")
+//! cpus = "1"                            # may run only on these CPUs (`0-1,3`; default: any)
 //! args = ["--out", "{record}"]
 //! ```
 
+use runtime::process::{Placement, Scheduling};
 use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -106,6 +109,12 @@ pub struct ServiceSpec {
     /// it says it is ready, and stopped last, so it sees the mesh's first and last messages.
     #[serde(default)]
     pub observer: bool,
+    /// Its scheduling class: `normal`, or `idle` (only on a CPU nothing else wants); may be a
+    /// placeholder.
+    pub scheduling: Option<String>,
+    /// The CPUs it may run on, `taskset -c` style (`0`, `0-1,3`; empty: any); may be a
+    /// placeholder.
+    pub cpus: Option<String>,
 }
 
 /// Why a mesh file cannot be used; names the file.
@@ -194,7 +203,7 @@ impl MeshFile {
             {
                 continue;
             }
-            out.push(self.command(s, &fill)?);
+            out.push(self.command(s, &fill, path)?);
         }
         Ok(out)
     }
@@ -203,6 +212,7 @@ impl MeshFile {
         &self,
         s: &ServiceSpec,
         fill: &impl Fn(&str, &str) -> Result<String, MeshError>,
+        path: &Path,
     ) -> Result<ServiceCommand, MeshError> {
         let mut args = vec!["--endpoint".to_owned(), self.mesh.endpoint.clone()];
         for a in &s.args {
@@ -218,7 +228,37 @@ impl MeshFile {
             args,
             restart: s.restart.unwrap_or(self.restart.enabled),
             observer: s.observer,
+            placement: self.placement(s, fill, path)?,
         })
+    }
+}
+
+impl MeshFile {
+    /// The service's scheduling class and CPUs, placeholders filled, checked against this machine.
+    fn placement(
+        &self,
+        s: &ServiceSpec,
+        fill: &impl Fn(&str, &str) -> Result<String, MeshError>,
+        path: &Path,
+    ) -> Result<Placement, MeshError> {
+        let invalid = |key: &str, why: String| MeshError::Invalid {
+            file: path.to_owned(),
+            message: format!("service `{}`: {key}: {why}", s.name),
+        };
+        let scheduling = match &s.scheduling {
+            None => Scheduling::Normal,
+            Some(text) => fill(&s.name, text)?
+                .parse()
+                .map_err(|why| invalid("scheduling", why))?,
+        };
+        let cpus = match &s.cpus {
+            None => Vec::new(),
+            Some(text) => runtime::process::parse_cpus(&fill(&s.name, text)?)
+                .map_err(|why| invalid("cpus", why))?,
+        };
+        let placement = Placement { scheduling, cpus };
+        placement.check().map_err(|why| invalid("cpus", why))?;
+        Ok(placement)
     }
 }
 
@@ -231,6 +271,7 @@ pub struct ServiceCommand {
     pub restart: bool,
     /// Started first and stopped last (see [`ServiceSpec::observer`]).
     pub observer: bool,
+    pub placement: Placement,
 }
 
 /// The `supervisor` command line that runs `mesh` with the experiment's `seed` in the iceoryx2
@@ -302,6 +343,63 @@ only_if = "{record}"
 observer = true
 args = ["--out", "{record}"]
 "#;
+
+    #[test]
+    fn placements_fill_placeholders_and_name_what_is_wrong() {
+        let text = r#"
+[mesh]
+endpoint = "sim"
+defaults = { cpus = "0", class = "idle" }
+[[service]]
+name = "camera"
+cpus = "{cpus}"
+[[service]]
+name = "recorder"
+scheduling = "{class}"
+[[service]]
+name = "monitor"
+"#;
+        let mesh = MeshFile::parse(text, Path::new("m.toml")).unwrap();
+        let cmds = mesh
+            .commands(&BTreeMap::new(), Path::new("m.toml"))
+            .unwrap();
+        assert_eq!(cmds[0].placement.cpus, [0]);
+        assert_eq!(cmds[0].placement.scheduling, Scheduling::Normal);
+        assert_eq!(cmds[1].placement.scheduling, Scheduling::Idle);
+        assert!(cmds[1].placement.cpus.is_empty());
+        assert_eq!(cmds[2].placement, Placement::default());
+        // Emptied from the command line: any CPU, the normal class.
+        let free = BTreeMap::from([
+            ("cpus".to_owned(), String::new()),
+            ("class".to_owned(), "normal".to_owned()),
+        ]);
+        let cmds = mesh.commands(&free, Path::new("m.toml")).unwrap();
+        assert!(cmds.iter().all(|c| c.placement == Placement::default()));
+        for (key, value, want) in [
+            (
+                "class",
+                "fifo",
+                "service `recorder`: scheduling: `fifo` is not",
+            ),
+            (
+                "cpus",
+                "9999",
+                "service `camera`: cpus: this machine has CPUs 0 to",
+            ),
+            (
+                "cpus",
+                "x",
+                "service `camera`: cpus: `x` in `x` is not a CPU number",
+            ),
+        ] {
+            let bad = BTreeMap::from([(key.to_owned(), value.to_owned())]);
+            let e = mesh
+                .commands(&bad, Path::new("m.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("m.toml") && e.contains(want), "{e}");
+        }
+    }
 
     #[test]
     fn commands_fill_placeholders_and_restart_policy() {

@@ -201,7 +201,8 @@ fn start(s: &mut Service, env: &[(&str, String)], ready_pipe: bool) -> Result<Ch
         .env(runtime::RESTARTS_ENV, s.restarts.len().to_string())
         // If the supervisor itself is killed, its services get SIGTERM instead of running on as
         // orphans.
-        .die_with_parent();
+        .die_with_parent()
+        .placement(s.cmd.placement.clone());
     if ready_pipe {
         spawn = spawn.ready_pipe();
     }
