@@ -62,8 +62,8 @@ pub struct Qos {
 const STEP: Qos = Qos {
     history: 1,
     buffer: 4,
-    // About 40 ms of the accelerated simulation (1,500 steps/s); 13 s at the vehicle's 5 Hz.
-    recorder_buffer: 64,
+    // About 55 ms of the accelerated simulation (2,300 steps/s); 26 s at the vehicle's 5 Hz.
+    recorder_buffer: 128,
     // The producing service, plus its restarted successor while the dead one is being cleaned up.
     max_publishers: 2,
     // The consumers, a recorder or monitor, and a test's probe.
@@ -111,11 +111,11 @@ pub const CAMERA_FRAME: Topic<[u8]> = Topic::new(
     "camera_frame",
     Qos {
         // Each subscriber's buffer and history cost a frame of shared memory: keep them small. The
-        // recorder's 32 frames (2.5 MB at 320x240) hold 20 ms of the accelerated simulation, what a
-        // recorder descheduled on a busy 2-core machine needs to lose none.
+        // recorder's 64 frames (4.9 MB at 320x240) hold 28 ms of the accelerated simulation, what a
+        // recorder draining every 10 ms on the CPU the loop leaves free needs to lose none.
         max_subscribers: 4,
         buffer: 2,
-        recorder_buffer: 32,
+        recorder_buffer: 64,
         ..STEP
     },
 );

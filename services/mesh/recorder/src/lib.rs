@@ -28,7 +28,7 @@ pub mod writer;
 
 pub use channels::{Channel, CommandDof};
 pub use keep::{Counts, Keep, Keeper, Overlay};
-pub use read::{Message, ReadError, ReadSummary, Reader, Recorded, metadata, read};
+pub use read::{Message, ReadError, ReadSummary, Reader, Recorded, holes, metadata, read};
 pub use writer::{FlightRecorder, Options, RecordError, Totals, parts};
 
 use std::path::{Path, PathBuf};

@@ -231,6 +231,47 @@ pub fn read(path: &Path, mut f: impl FnMut(Message)) -> Result<ReadSummary, Read
     Ok(reader.summary)
 }
 
+/// The steps missed over all channels, from the totals a cleanly stopped recorder writes into its
+/// last part (`None`: no totals there, the recorder did not stop cleanly).
+pub fn holes(path: &Path) -> Result<Option<u64>, ReadError> {
+    let Some(last) = writer::parts(path).pop() else {
+        return Err(ReadError::NotFound {
+            path: path.to_owned(),
+        });
+    };
+    let bytes = std::fs::read(&last).map_err(|source| ReadError::Open {
+        path: last.clone(),
+        source,
+    })?;
+    let mcap_error = |source| ReadError::Mcap {
+        path: last.clone(),
+        source,
+    };
+    let Some(summary) = mcap::Summary::read(&bytes).map_err(mcap_error)? else {
+        return Ok(None);
+    };
+    let Some(index) = summary
+        .metadata_indexes
+        .iter()
+        .find(|i| i.name == "recorder")
+    else {
+        return Ok(None);
+    };
+    let totals = mcap::read::metadata(&bytes, index).map_err(mcap_error)?;
+    // Each channel's line: "written N repeats N holes N decimated N".
+    Ok(Some(
+        totals
+            .metadata
+            .values()
+            .filter_map(|v| {
+                let mut words = v.split_whitespace();
+                words.find(|w| *w == "holes")?;
+                words.next()?.parse::<u64>().ok()
+            })
+            .sum(),
+    ))
+}
+
 /// The record's `cabletrack` metadata (endpoint, seed, what log time is, ...), from its first part:
 /// the recorder writes it before the first message.
 pub fn metadata(path: &Path) -> Result<BTreeMap<String, String>, ReadError> {
