@@ -31,4 +31,4 @@ pub use error::{DecodeError, FrameError, VisionError};
 pub use image::{Frame, ImageView, MAX_SIDE, MIN_SIDE};
 pub use perception::{Detection, Perception};
 pub use render::Renderer;
-pub use simulated::SimulatedVision;
+pub use simulated::{SimulatedVision, StageTimes};

@@ -24,6 +24,16 @@ pub struct SimulatedVision {
     frame: Vec<u8>,
     frame_index: u64,
     dt_s: f64,
+    times: StageTimes,
+}
+
+/// Where the loop's time went: wall time spent rendering and perceiving (on one thread, its CPU
+/// time), over `frames` frames. Benchmarks compare it with the same stages run as processes.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageTimes {
+    pub frames: u64,
+    pub render_ns: u64,
+    pub perceive_ns: u64,
 }
 
 impl SimulatedVision {
@@ -38,6 +48,7 @@ impl SimulatedVision {
             frame,
             frame_index: 0,
             dt_s: scenario.timing.sample_time_s,
+            times: StageTimes::default(),
         })
     }
 
@@ -51,15 +62,27 @@ impl SimulatedVision {
     /// one sample time after the previous frame.
     pub fn observe(&mut self, state: &VehicleState) -> CableObservation {
         let rate = state.pose_rate();
+        let start = std::time::Instant::now();
         self.renderer
             .render(&state.pose, &rate, self.frame_index, &mut self.frame)
             .expect("the frame buffer has the camera's size");
+        let rendered = std::time::Instant::now();
         self.frame_index += 1;
         let view = ImageView::new(&self.frame, self.renderer.width(), self.renderer.height())
             .expect("the frame buffer has the camera's size");
-        self.perception
+        let obs = self
+            .perception
             .process(view, self.dt_s)
-            .expect("perception is set up for the renderer's camera")
+            .expect("perception is set up for the renderer's camera");
+        self.times.frames += 1;
+        self.times.render_ns += (rendered - start).as_nanos() as u64;
+        self.times.perceive_ns += rendered.elapsed().as_nanos() as u64;
+        obs
+    }
+
+    /// The time spent in each stage since it was made.
+    pub fn stage_times(&self) -> StageTimes {
+        self.times
     }
 
     /// The last rendered frame.

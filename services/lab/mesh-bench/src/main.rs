@@ -3,7 +3,7 @@
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
-use mesh_bench::report::{Machine, Results, load, thousands};
+use mesh_bench::report::{Machine, Results, calibrate, load, thousands};
 use mesh_bench::ring::{self, Role};
 use mesh_bench::runs::{self, MeshSetup};
 use mesh_bench::vehicle::VehicleSetup;
@@ -142,6 +142,12 @@ enum Hidden {
     /// The vehicle endpoint: camera-to-thruster latency at 5 Hz over many steps, CPU and memory of
     /// every service (step one runs first, in simulation, for the policy the vehicle starts from).
     Vehicle(VehicleArgs),
+    /// Several invocations' figures (their `--json` files) side by side, with the median and the
+    /// range over them.
+    Spread {
+        #[arg(required = true, num_args = 1..)]
+        files: Vec<PathBuf>,
+    },
     /// One node of the bare ring (started by the bench itself).
     #[command(hide = true)]
     RingNode {
@@ -177,6 +183,12 @@ fn main() -> ExitCode {
     if let Some(Hidden::Drill(args)) = &command_line.command {
         runtime::init_tracing();
         return match drill(args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(err) => cli::fail("mesh-bench", err.as_ref()),
+        };
+    }
+    if let Some(Hidden::Spread { files }) = &command_line.command {
+        return match spread(files) {
             Ok(()) => ExitCode::SUCCESS,
             Err(err) => cli::fail("mesh-bench", err.as_ref()),
         };
@@ -262,6 +274,23 @@ fn drill(args: &DrillArgs) -> Result<()> {
 }
 
 /// Prints the Markdown report and writes it and the figures (JSON) where asked.
+fn spread(files: &[PathBuf]) -> Result<()> {
+    let mut all = Vec::new();
+    for f in files {
+        let text =
+            std::fs::read_to_string(f).with_context(|| format!("reading {}", f.display()))?;
+        let r: Results = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not the figures of `mesh-bench --json`", f.display()))?;
+        let name = f.file_stem().map_or_else(
+            || f.display().to_string(),
+            |s| s.to_string_lossy().into_owned(),
+        );
+        all.push((name, r));
+    }
+    cli::outln!("{}", mesh_bench::report::spread(&all))?;
+    Ok(())
+}
+
 fn report(
     figures: &impl serde::Serialize,
     markdown: &str,
@@ -306,6 +335,9 @@ fn bench(args: &Bench) -> Result<()> {
         warmup,
         ..Default::default()
     };
+    let placement = runs::loop_placement(&mesh_file)?;
+    results.loop_cpus = placement.cpus.clone();
+    results.machine.calibration_ms[0] = calibrate();
     eprintln!(
         "mesh-bench: {} repeats of {} episodes on {} cores (load average {:.2})",
         args.repeats, args.episodes, results.machine.cores, results.machine.load_before
@@ -334,8 +366,16 @@ fn bench(args: &Bench) -> Result<()> {
         };
         let in_process = runs::in_process(&config_dir, args.episodes, setup.seed)
             .context("the cores in one process")?;
-        let ring =
-            runs::ring(&exe, &config_dir, warmup, ring_steps, false, None).context("the ring")?;
+        let ring = runs::ring(
+            &exe,
+            &config_dir,
+            warmup,
+            ring_steps,
+            false,
+            None,
+            &placement,
+        )
+        .context("the ring")?;
         let ring_probe = runs::ring(
             &exe,
             &config_dir,
@@ -343,6 +383,7 @@ fn bench(args: &Bench) -> Result<()> {
             ring_steps,
             true,
             setup.probe_fifo,
+            &placement,
         )
         .context("the ring with the probe")?;
         let step_p99 = mesh_probe
@@ -371,6 +412,7 @@ fn bench(args: &Bench) -> Result<()> {
         results.ring_probe.push(ring_probe);
     }
     results.machine.load_after = load();
+    results.machine.calibration_ms[1] = calibrate();
     let markdown = results.markdown();
     report(
         &results,
@@ -430,7 +472,7 @@ fn record(args: &RecordArgs) -> Result<()> {
         };
         let rec = on.processes.iter().find(|p| p.name == "recorder");
         eprintln!(
-            "  repeat {}/{}: recorder off {} steps/s, on {} steps/s ({:.3}); recorder {:.1} µs CPU per step; record {:.1} MB",
+            "  repeat {}/{}: recorder off {} steps/s, on {} steps/s ({:.3}); recorder {:.1} µs CPU per step; record {:.1} MB, {} steps missed",
             r + 1,
             args.repeats,
             thousands(off.steps_per_s),
@@ -438,6 +480,7 @@ fn record(args: &RecordArgs) -> Result<()> {
             on.steps_per_s / off.steps_per_s,
             rec.map_or(f64::NAN, |p| p.cpu_us_per_step),
             on.record_bytes as f64 / 1e6,
+            on.record_holes,
         );
         pairs.push((off, on));
     }
@@ -454,13 +497,15 @@ fn record(args: &RecordArgs) -> Result<()> {
     });
     // Bytes per step over the whole run (every step is recorded, the warm-up too).
     let bytes_per_step = median(&|p| p.1.record_bytes as f64 / p.1.last_seq.max(1) as f64);
+    let holes: u64 = pairs.iter().map(|p| p.1.record_holes).sum();
     let markdown = format!(
         "| flight recorder, {} pairs of runs x {} episodes, images of every {} steps | median |\n|---|---:|\n\
          | mesh, recorder off | {} steps/s |\n\
          | mesh, recorder on | {} steps/s |\n\
          | on / off (median of the pairs' ratios) | {:.3} |\n\
          | recorder's CPU per step | {:.1} µs |\n\
-         | record per step | {:.1} kB |\n",
+         | record per step | {:.1} kB |\n\
+         | steps the recorder missed, all channels, all runs | {} |\n",
         args.repeats,
         args.episodes,
         args.frame_every,
@@ -469,6 +514,7 @@ fn record(args: &RecordArgs) -> Result<()> {
         ratio,
         cpu,
         bytes_per_step / 1e3,
+        holes,
     );
     report(&pairs, &markdown, args.json.as_deref(), None)
 }

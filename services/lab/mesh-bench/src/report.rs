@@ -16,6 +16,28 @@ pub struct Machine {
     /// `/proc/loadavg`'s 1-minute figure before and after the bench.
     pub load_before: f64,
     pub load_after: f64,
+    /// The machine's speed: the fixed calibration loop's time (ms, median of 5) before the bench
+    /// and after it. Figures of two days compare once scaled by it.
+    #[serde(default)]
+    pub calibration_ms: [f64; 2],
+}
+
+/// A fixed amount of integer and floating-point work on one core, the same on every machine and
+/// every day: its time (ms, median of 5 passes) is the machine's speed as the bench's figures see it.
+pub fn calibrate() -> f64 {
+    let pass = || {
+        let start = std::time::Instant::now();
+        let (mut x, mut acc) = (0x9e37_79b9_7f4a_7c15_u64, 0.0f64);
+        for _ in 0..20_000_000u32 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            acc = acc * 0.999_999 + (x >> 40) as f64;
+        }
+        std::hint::black_box(acc);
+        start.elapsed().as_secs_f64() * 1e3
+    };
+    median((0..5).map(|_| pass()))
 }
 
 impl Machine {
@@ -36,6 +58,7 @@ impl Machine {
                 .unwrap_or_default(),
             load_before: load(),
             load_after: f64::NAN,
+            calibration_ms: [f64::NAN; 2],
         }
     }
 }
@@ -63,6 +86,9 @@ pub struct Results {
     pub in_process: Vec<InProcessRun>,
     pub ring: Vec<RingRun>,
     pub ring_probe: Vec<RingRun>,
+    /// The CPUs the loop's services ran on (the mesh file's; empty: any), the ring's nodes too.
+    #[serde(default)]
+    pub loop_cpus: Vec<usize>,
 }
 
 /// Medians over the repeats.
@@ -80,7 +106,42 @@ pub struct Medians {
     pub probe_cost_ring: f64,
 }
 
+/// One stage's CPU per step in the mesh (its process) and in one process (its core's calls), µs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StageCost {
+    pub in_mesh: f64,
+    pub in_process: f64,
+}
+
+impl StageCost {
+    pub fn ratio(&self) -> f64 {
+        self.in_mesh / self.in_process
+    }
+}
+
 impl Results {
+    /// The camera's and perception's cost per step, medians over the repeats.
+    pub fn stages(&self) -> [StageCost; 2] {
+        let in_mesh = |name: &str| {
+            median(self.mesh.iter().flat_map(|r| {
+                r.processes
+                    .iter()
+                    .filter(|p| p.name == name)
+                    .map(|p| p.cpu_us_per_step)
+            }))
+        };
+        [
+            StageCost {
+                in_mesh: in_mesh("camera"),
+                in_process: median(self.in_process.iter().map(|r| r.render_us_per_step)),
+            },
+            StageCost {
+                in_mesh: in_mesh("perception"),
+                in_process: median(self.in_process.iter().map(|r| r.perceive_us_per_step)),
+            },
+        ]
+    }
+
     pub fn medians(&self) -> Medians {
         let ratios = self
             .mesh
@@ -125,8 +186,30 @@ impl Results {
         );
         let _ = writeln!(
             out,
-            "Machine: {} cores ({}), Linux {}; 1-minute load average {:.2} before, {:.2} after.\n",
-            mc.cores, mc.cpu, mc.kernel, mc.load_before, mc.load_after
+            "Machine: {} cores ({}), Linux {}; 1-minute load average {:.2} before, {:.2} after; \
+             its speed, the fixed calibration loop on one core: {:.1} ms before, {:.1} ms after.\n",
+            mc.cores,
+            mc.cpu,
+            mc.kernel,
+            mc.load_before,
+            mc.load_after,
+            mc.calibration_ms[0],
+            mc.calibration_ms[1]
+        );
+        let _ = writeln!(
+            out,
+            "The loop's seven services, and the bare ring's seven nodes, ran on {}.\n",
+            match self.loop_cpus.as_slice() {
+                [] => "any CPU".to_owned(),
+                [one] => format!("CPU {one}"),
+                many => format!(
+                    "CPUs {}",
+                    many.iter()
+                        .map(|c| c.to_string())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            }
         );
         let us = |rate: f64| 1e6 / rate;
         let range = |v: &[f64]| {
@@ -356,9 +439,9 @@ impl Results {
         );
         let _ = writeln!(
             out,
-            "| process | CPU per step (µs) | CPU in the run (ms) | kernel share | RSS (MiB) | of it shared memory | peak RSS (MiB) |"
+            "| process | CPU per step (µs) | CPU in the run (ms) | kernel share | switches per step: blocked / preempted | migrations per step | page faults per step | RSS (MiB) | of it shared memory | peak RSS (MiB) |"
         );
-        let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|");
+        let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
         let mut names: Vec<String> = Vec::new();
         for r in &self.mesh {
             for p in &r.processes {
@@ -382,9 +465,13 @@ impl Results {
             }
             let _ = writeln!(
                 out,
-                "| {name} | {per_step:.0} | {:.0} | {:.0}% | {:.1} | {:.1} | {:.1} |",
+                "| {name} | {per_step:.0} | {:.0} | {:.0}% | {:.2} / {:.2} | {:.3} | {:.2} | {:.1} | {:.1} | {:.1} |",
                 of(|p| p.cpu_ms),
                 100.0 * of(|p| p.sys_share),
+                of(|p| p.per_step.voluntary),
+                of(|p| p.per_step.involuntary),
+                of(|p| p.per_step.migrations),
+                of(|p| p.per_step.minor_faults),
                 of(|p| p.rss_mib),
                 of(|p| p.shmem_mib),
                 of(|p| p.hwm_mib),
@@ -393,7 +480,30 @@ impl Results {
         let ring_cpu = median(self.ring.iter().map(|r| r.cpu_us_per_step));
         let _ = writeln!(
             out,
-            "| **all of the mesh** | **{total_step:.0}** | | | | | |\n| bare ring, its 7 nodes together | {ring_cpu:.0} | | | | | |"
+            "| **all of the mesh** | **{total_step:.0}** | | | | | | | | |\n| bare ring, its 7 nodes together | {ring_cpu:.0} | | | | | | | | |"
+        );
+        let a = |f: fn(&InProcessRun) -> f64| median(self.in_process.iter().map(f));
+        let _ = writeln!(
+            out,
+            "| limit (a), the loop's one thread | {:.0} | | | {:.2} / {:.2} | {:.3} | {:.2} | | | |",
+            us(m.in_process_steps_per_s),
+            a(|r| r.per_step.voluntary),
+            a(|r| r.per_step.involuntary),
+            a(|r| r.per_step.migrations),
+            a(|r| r.per_step.minor_faults),
+        );
+        let [camera, perception] = self.stages();
+        let _ = writeln!(
+            out,
+            "\nThe two stages that do the work, CPU per step in the mesh against the same core in one process \
+             (limit (a), medians): camera {:.0} µs against rendering {:.0} µs ({:.2}x); perception {:.0} µs \
+             against perceiving {:.0} µs ({:.2}x).",
+            camera.in_mesh,
+            camera.in_process,
+            camera.ratio(),
+            perception.in_mesh,
+            perception.in_process,
+            perception.ratio(),
         );
         let leftovers: usize = self
             .mesh
@@ -414,6 +524,73 @@ impl Results {
         );
         out
     }
+}
+
+/// Several invocations of the bench side by side, each with its medians, and the median and range
+/// over them: how much a figure moves between two invocations on the same machine.
+pub fn spread(invocations: &[(String, Results)]) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "| invocation | calibration loop (ms) | load before | mesh steps/s | limit (a) steps/s | limit (b) steps/s | mesh / ((a) + (b)) | camera in mesh / in one process | perception in mesh / in one process |"
+    );
+    let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let mut rows: Vec<[f64; 8]> = Vec::new();
+    for (name, r) in invocations {
+        let m = r.medians();
+        let [c, p] = r.stages();
+        let row = [
+            r.machine.calibration_ms[0],
+            r.machine.load_before,
+            m.mesh_steps_per_s,
+            m.in_process_steps_per_s,
+            m.ring_steps_per_s,
+            m.ratio,
+            c.ratio(),
+            p.ratio(),
+        ];
+        let _ = writeln!(
+            out,
+            "| {name} | {:.1} | {:.2} | {} | {} | {} | {:.2} | {:.2} | {:.2} |",
+            row[0],
+            row[1],
+            thousands(row[2]),
+            thousands(row[3]),
+            thousands(row[4]),
+            row[5],
+            row[6],
+            row[7]
+        );
+        rows.push(row);
+    }
+    let col = |k: usize| -> (f64, f64, f64) {
+        let v: Vec<f64> = rows.iter().map(|r| r[k]).collect();
+        let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        (median(v), lo, hi)
+    };
+    let f2 = |k: usize| {
+        let (m, lo, hi) = col(k);
+        format!("{m:.2} ({lo:.2} – {hi:.2})")
+    };
+    let big = |k: usize| {
+        let (m, lo, hi) = col(k);
+        format!("{} ({} – {})", thousands(m), thousands(lo), thousands(hi))
+    };
+    let (cal, cal_lo, cal_hi) = col(0);
+    let _ = writeln!(
+        out,
+        "| **median (min – max) of {}** | {cal:.1} ({cal_lo:.1} – {cal_hi:.1}) | {} | {} | {} | {} | {} | {} | {} |",
+        rows.len(),
+        f2(1),
+        big(2),
+        big(3),
+        big(4),
+        f2(5),
+        f2(6),
+        f2(7)
+    );
+    out
 }
 
 /// Nanoseconds as microseconds, one decimal below 100 µs.
@@ -462,12 +639,26 @@ mod tests {
         let r = Results {
             mesh: vec![MeshRun {
                 steps_per_s: 1000.0,
+                processes: vec![
+                    ProcessUse {
+                        name: "camera".into(),
+                        cpu_us_per_step: 220.0,
+                        ..Default::default()
+                    },
+                    ProcessUse {
+                        name: "perception".into(),
+                        cpu_us_per_step: 150.0,
+                        ..Default::default()
+                    },
+                ],
                 ..Default::default()
             }],
             in_process: vec![InProcessRun {
                 steps_per_s: 2000.0,
                 steps: 1,
-                other_cores: 0.0,
+                render_us_per_step: 200.0,
+                perceive_us_per_step: 100.0,
+                ..Default::default()
             }],
             ring: vec![RingRun {
                 steps_per_s: 4000.0,
@@ -477,6 +668,15 @@ mod tests {
         };
         // 1000 µs against 500 + 250 µs.
         assert!((r.medians().ratio - 1000.0 / 750.0).abs() < 1e-12);
-        assert!(r.markdown().contains("ratio 1.33"));
+        let md = r.markdown();
+        assert!(md.contains("ratio 1.33"));
+        assert!(
+            md.contains("camera 220 µs against rendering 200 µs (1.10x)"),
+            "{md}"
+        );
+        assert!(
+            md.contains("perception 150 µs against perceiving 100 µs (1.50x)"),
+            "{md}"
+        );
     }
 }

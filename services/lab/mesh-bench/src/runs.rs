@@ -3,14 +3,14 @@
 //! process. Every run of processes gets an iceoryx2 namespace of its own, removed afterwards.
 
 use crate::probe::{self, Observed, Probe, Progress};
-use crate::procfs::{self, ProcSample};
+use crate::procfs::{self, ProcSample, SchedCounts};
 use crate::ring::{self, NodeReport, Role};
 use crate::stats::{Summary, now_ns};
 use crate::timeline::HopLatencies;
 use anyhow::{Context, Result, bail};
 use messages::Endpoint;
 use runtime::Namespace;
-use runtime::process::{Child, Spawn};
+use runtime::process::{Child, Placement, Spawn};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -21,6 +21,18 @@ const TICK: Duration = Duration::from_millis(20);
 const PROBE_POLL: Duration = Duration::from_millis(50);
 /// The longest any one run may take.
 const RUN_LIMIT: Duration = Duration::from_secs(600);
+
+/// Where the mesh file puts the loop's services (its simulator's placement, its defaults filled):
+/// the bare ring's nodes run there too, so the limit is measured as the mesh runs.
+pub fn loop_placement(mesh_file: &Path) -> Result<Placement> {
+    let mesh = supervisor::MeshFile::load(mesh_file)?;
+    let commands = mesh.commands(&Default::default(), mesh_file)?;
+    Ok(commands
+        .into_iter()
+        .find(|c| c.name == "simulator")
+        .map(|c| c.placement)
+        .unwrap_or_default())
+}
 
 /// Starts a process of a run: its output in `log`, stopped if the bench dies.
 pub fn spawn(
@@ -117,6 +129,30 @@ pub struct ProcessUse {
     pub rss_mib: f64,
     pub hwm_mib: f64,
     pub shmem_mib: f64,
+    /// Per step of the steady window: context switches, migrations, minor page faults.
+    #[serde(default)]
+    pub per_step: SchedRates,
+}
+
+/// [`SchedCounts`] per step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SchedRates {
+    pub voluntary: f64,
+    pub involuntary: f64,
+    pub migrations: f64,
+    pub minor_faults: f64,
+}
+
+impl SchedRates {
+    pub fn of(c: &SchedCounts, steps: f64) -> SchedRates {
+        let s = steps.max(1.0);
+        SchedRates {
+            voluntary: c.voluntary as f64 / s,
+            involuntary: c.involuntary as f64 / s,
+            migrations: c.migrations as f64 / s,
+            minor_faults: c.minor_faults as f64 / s,
+        }
+    }
 }
 
 /// The order processes are listed in: the loop's.
@@ -149,9 +185,12 @@ pub fn usage(ticks: &[Tick], (a, b): (usize, usize)) -> Vec<ProcessUse> {
         .into_iter()
         .filter_map(|pid| {
             let last = ticks.iter().rev().find_map(|t| find(t, pid))?;
-            let steady = match (find(&ticks[a], pid), find(&ticks[b], pid)) {
-                (Some(x), Some(y)) => y.cpu_ns.saturating_sub(x.cpu_ns) as f64 / steps / 1e3,
-                _ => f64::NAN,
+            let (steady, per_step) = match (find(&ticks[a], pid), find(&ticks[b], pid)) {
+                (Some(x), Some(y)) => (
+                    y.cpu_ns.saturating_sub(x.cpu_ns) as f64 / steps / 1e3,
+                    SchedRates::of(&y.sched.since(&x.sched), steps),
+                ),
+                _ => (f64::NAN, SchedRates::default()),
             };
             let ticks_total = (last.utime_ticks + last.stime_ticks).max(1) as f64;
             const MIB: f64 = 1024.0;
@@ -163,6 +202,7 @@ pub fn usage(ticks: &[Tick], (a, b): (usize, usize)) -> Vec<ProcessUse> {
                 rss_mib: last.rss_kb as f64 / MIB,
                 hwm_mib: last.hwm_kb as f64 / MIB,
                 shmem_mib: last.shmem_kb as f64 / MIB,
+                per_step,
             })
         })
         .collect();
@@ -295,6 +335,9 @@ pub struct MeshRun {
     pub leftovers: usize,
     /// With the recorder on: the flight record's size (every part), bytes.
     pub record_bytes: u64,
+    /// With the recorder on: the steps it missed, every channel summed (its totals at close).
+    #[serde(default)]
+    pub record_holes: u64,
     /// Without the probe: the last step seen (the run's steps, the warm-up included).
     pub last_seq: u64,
 }
@@ -392,6 +435,8 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
         {
             run.record_bytes += entry?.metadata()?.len();
         }
+        run.record_holes = recorder::holes(&record_dir.join("flight.mcap"))?
+            .context("the flight record has no totals: the recorder did not stop cleanly")?;
     }
     Ok(run)
 }
@@ -424,6 +469,7 @@ pub fn ring(
     steps: u64,
     with_probe: bool,
     probe_fifo: Option<i32>,
+    placement: &Placement,
 ) -> Result<RingRun> {
     let ns = Namespace::new(if with_probe { "q" } else { "r" });
     let node = probe::node(&ns.iox, "mesh-bench")?;
@@ -449,7 +495,16 @@ pub fn ring(
         .map(String::from)
         .into();
         let log = ns.scratch().join(format!("{}.log", role.name()));
-        nodes.push((*role, spawn(role.name(), exe, &args, &env, log)?));
+        let node = Spawn::new(exe)
+            .name(role.name())
+            .args(&args)
+            .envs(env.iter().map(|(k, v)| (k, v)))
+            .log(log)
+            .die_with_parent()
+            .placement(placement.clone())
+            .start()
+            .with_context(|| format!("starting the ring's {}", role.name()))?;
+        nodes.push((*role, node));
     }
     let driver = nodes.len() - 1;
     let mut run = RingRun {
@@ -535,6 +590,14 @@ pub struct InProcessRun {
     pub steps: u64,
     /// Cores busy with other work meanwhile.
     pub other_cores: f64,
+    /// Time per step spent rendering and perceiving (the camera's and perception's cores).
+    #[serde(default)]
+    pub render_us_per_step: f64,
+    #[serde(default)]
+    pub perceive_us_per_step: f64,
+    /// The loop's thread, per step.
+    #[serde(default)]
+    pub per_step: SchedRates,
 }
 
 /// The trainer's `World` with images and both NAC learners on one thread: the first episode is the
@@ -551,18 +614,30 @@ pub fn in_process(config_dir: &Path, episodes: u32, seed: u64) -> Result<InProce
         seed,
     );
     world.run_episode();
+    let stage_times = |w: &trainer::world::World| match w.perceiver() {
+        trainer::Perceiver::Images(v) => v.stage_times(),
+        trainer::Perceiver::Ideal(_) => vision::StageTimes::default(),
+    };
+    let warm = stage_times(&world);
+    let counts = SchedCounts::this_thread();
     let (busy, own) = (procfs::machine_busy_ns(), procfs::own_cpu_ns());
     let start = Instant::now();
     let steps: u64 = (1..episodes.max(2))
         .map(|_| world.run_episode().steps as u64 + 1)
         .sum();
     let wall = start.elapsed();
+    let counts = SchedCounts::this_thread().since(&counts);
     let others = procfs::machine_busy_ns().saturating_sub(busy) as f64
         - procfs::own_cpu_ns().saturating_sub(own) as f64;
+    let t = stage_times(&world);
+    let per_step = |ns: u64| ns as f64 / 1e3 / steps.max(1) as f64;
     Ok(InProcessRun {
         steps_per_s: steps as f64 / wall.as_secs_f64(),
         steps,
         other_cores: (others / wall.as_nanos().max(1) as f64).max(0.0),
+        render_us_per_step: per_step(t.render_ns - warm.render_ns),
+        perceive_us_per_step: per_step(t.perceive_ns - warm.perceive_ns),
+        per_step: SchedRates::of(&counts, steps as f64),
     })
 }
 
@@ -583,6 +658,11 @@ mod tests {
                 rss_kb: 2048,
                 hwm_kb: 4096,
                 shmem_kb: 1024,
+                sched: SchedCounts {
+                    voluntary: 2 * seq,
+                    minor_faults: 5,
+                    ..Default::default()
+                },
             }],
             // The machine busy twice the camera's time plus 1 ms per tick of the bench.
             busy_ns: (2 * cpu_ms + t_ms / 20) * 1_000_000,
@@ -615,6 +695,9 @@ mod tests {
             (2.0, 4.0, 1.0)
         );
         assert_eq!(u[0].sys_share, 0.25);
+        // Two switches per step, no new page faults in the window.
+        assert_eq!(u[0].per_step.voluntary, 2.0);
+        assert_eq!(u[0].per_step.minor_faults, 0.0);
         assert!(window(&ticks[..3], 201).is_none());
         // 12 ms of other work over 40 ms.
         assert!((other_cores(&ticks, w) - 0.3).abs() < 1e-9);

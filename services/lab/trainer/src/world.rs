@@ -107,6 +107,10 @@ impl World {
         &mut self.agents
     }
 
+    pub fn perceiver(&self) -> &Perceiver {
+        &self.perceiver
+    }
+
     pub fn into_agents(self) -> PerDof<Agent> {
         self.agents
     }
