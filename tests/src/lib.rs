@@ -40,6 +40,9 @@ pub struct MeshOptions {
     /// Watch the observations.
     pub watch: bool,
     pub timeout: Duration,
+    /// The loop's services on these CPUs, as the mesh file places them outside the tests (`None`:
+    /// on any CPU, the tests' placement, `testkit::SHARED_MACHINE`).
+    pub loop_cpus: Option<&'static str>,
 }
 
 impl Default for MeshOptions {
@@ -50,6 +53,7 @@ impl Default for MeshOptions {
             eyes: "ideal",
             watch: false,
             timeout: Duration::from_secs(60),
+            loop_cpus: None,
         }
     }
 }
@@ -60,16 +64,20 @@ pub fn run_mesh(ns: &Namespace, opts: &MeshOptions) -> MeshRun {
     let json: PathBuf = dir.path().join("run.json");
     let probe = testkit::probe(ns, Endpoint::Sim);
     let observations = opts.watch.then(|| probe.inbox(&topics::CABLE_OBSERVATION));
+    let mut sets = vec![
+        ("episodes", opts.episodes.to_string()),
+        ("eyes", opts.eyes.to_owned()),
+        ("json", json.display().to_string()),
+        ("state", dir.path().display().to_string()),
+    ];
+    if let Some(cpus) = opts.loop_cpus {
+        sets.push(("loop_cpus", cpus.to_owned()));
+    }
     let mut supervisor = testkit::supervisor(
         ns,
         &testkit::config_dir().join("sim-mesh.toml"),
         opts.seed,
-        &[
-            ("episodes", opts.episodes.to_string()),
-            ("eyes", opts.eyes.to_owned()),
-            ("json", json.display().to_string()),
-            ("state", dir.path().display().to_string()),
-        ],
+        &sets,
     );
     let end = Instant::now() + opts.timeout;
     let mut seen = Vec::new();
