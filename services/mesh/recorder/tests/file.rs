@@ -308,3 +308,42 @@ fn a_file_cut_anywhere_reads_in_order_up_to_the_cut() {
     }
     assert!(previous > all.len() / 2);
 }
+
+/// `recorder::holes` reads back the steps the totals say were missed: none for a whole run, the
+/// step whose setpoints never came for a run with that hole, and nothing to say for a file with no
+/// totals (cut before its close).
+#[test]
+fn holes_reads_the_missed_steps_from_the_totals() {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = dir.path().join("whole.mcap");
+    let totals = write(&whole, 20, |_| {});
+    assert!(totals.counts.values().all(|c| c.holes == 0));
+    assert_eq!(recorder::holes(&whole).unwrap(), Some(0));
+
+    let gap = dir.path().join("gap.mcap");
+    let mut rec =
+        FlightRecorder::create(Options::new(&gap), BTreeMap::new()).expect("a new record");
+    for k in 0..20 {
+        let s = step(k);
+        if k == 10 {
+            // Every message of step 10 but its setpoints.
+            rec.frame(&s.header, &s.image);
+            rec.observation(&s.observation);
+            for (dof, c) in CommandDof::ALL.into_iter().zip(&s.commands) {
+                rec.command(dof, c);
+            }
+        } else {
+            record(&mut rec, &s);
+        }
+    }
+    let totals = rec.close().unwrap();
+    let want: u64 = totals.counts.values().map(|c| c.holes).sum();
+    assert!(want > 0, "{:?}", totals.counts);
+    assert_eq!(recorder::holes(&gap).unwrap(), Some(want));
+
+    let bytes = std::fs::read(&whole).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    assert!(matches!(recorder::holes(&cut), Ok(None) | Err(_)));
+    assert!(recorder::holes(&dir.path().join("none.mcap")).is_err());
+}

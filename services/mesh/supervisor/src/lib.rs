@@ -231,9 +231,7 @@ impl MeshFile {
             placement: self.placement(s, fill, path)?,
         })
     }
-}
 
-impl MeshFile {
     /// The service's scheduling class and CPUs, placeholders filled, checked against this machine.
     fn placement(
         &self,
