@@ -26,6 +26,7 @@ pub mod rng;
 pub mod sampling;
 mod simulated;
 mod texture;
+mod wide;
 
 pub use error::{DecodeError, FrameError, VisionError};
 pub use image::{Frame, ImageView, MAX_SIDE, MIN_SIDE};
