@@ -36,7 +36,24 @@ pub(crate) struct Hough {
     cos: Vec<f32>,
     sin: Vec<f32>,
     acc: Vec<u16>,
+    /// Per angle cell, the rho cells voted in since the accumulator was last cleared (`lo > hi`:
+    /// none). A tracking band's points touch a few rows of the accumulator: clearing it and looking
+    /// for peaks visit only these cells, everything else is zero.
+    touched: Vec<RhoRange>,
     peaks: Vec<Peak>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct RhoRange {
+    lo: usize,
+    hi: usize,
+}
+
+impl RhoRange {
+    const NONE: RhoRange = RhoRange {
+        lo: usize::MAX,
+        hi: 0,
+    };
 }
 
 impl Hough {
@@ -58,6 +75,7 @@ impl Hough {
                 .map(|a| (a as f64 * angle_step).sin() as f32)
                 .collect(),
             acc: vec![0; n_angle * n_rho],
+            touched: vec![RhoRange::NONE; n_angle],
             peaks: Vec::with_capacity(64),
         }
     }
@@ -73,33 +91,54 @@ impl Hough {
     /// Clears the accumulator and lets every point vote for `spread` angle cells either side of its
     /// gradient's.
     pub fn vote(&mut self, edges: &[EdgePoint], spread: usize) {
-        self.acc.fill(0);
+        let nr = self.n_rho;
+        for (a, t) in self.touched.iter_mut().enumerate() {
+            if t.lo <= t.hi {
+                self.acc[a * nr + t.lo..=a * nr + t.hi].fill(0);
+            }
+            *t = RhoRange::NONE;
+        }
         let n = self.n_angle as isize;
         let inv_angle = (1.0 / self.angle_step) as f32;
         let inv_rho = (1.0 / self.rho_step) as f32;
         let offset = (self.rho_max / self.rho_step) as f32 + 0.5;
         let last = (self.n_rho - 1) as f32;
+        let n_angle = self.n_angle;
         for p in edges {
             let phi = fast_atan2(p.gy, p.gx);
             let a0 = (phi * inv_angle).round() as isize;
-            for k in -(spread as isize)..=spread as isize {
-                let a = (a0 + k).rem_euclid(n) as usize;
+            // The angle cells a0 - spread ..= a0 + spread, wrapped: one division per point.
+            let mut a = (a0 - spread as isize).rem_euclid(n) as usize;
+            for _ in 0..=2 * spread {
                 let rho = p.x * self.cos[a] + p.y * self.sin[a];
                 let r = (rho * inv_rho + offset).clamp(0.0, last) as usize;
-                let cell = &mut self.acc[a * self.n_rho + r];
+                let cell = &mut self.acc[a * nr + r];
                 *cell = cell.saturating_add(1);
+                let t = &mut self.touched[a];
+                t.lo = t.lo.min(r);
+                t.hi = t.hi.max(r);
+                a += 1;
+                if a == n_angle {
+                    a = 0;
+                }
             }
         }
     }
 
     /// The strongest local maxima (at most `max_peaks`) with at least `min_votes` votes, strongest first.
+    /// An untouched cell holds zero votes and is never a peak, so only the touched cells are scanned
+    /// (in the order of the whole accumulator's scan: the same peaks, in the same order).
     pub fn peaks(&mut self, min_votes: u32, max_peaks: usize) -> &[Peak] {
         self.peaks.clear();
         let (na, nr) = (self.n_angle, self.n_rho);
         for a in 0..na {
+            let RhoRange { lo, hi } = self.touched[a];
+            if lo > hi {
+                continue;
+            }
             let prev = (a + na - 1) % na;
             let next = (a + 1) % na;
-            for r in 0..nr {
+            for r in lo..=hi {
                 let v = self.acc[a * nr + r];
                 if (v as u32) < min_votes {
                     continue;
@@ -243,6 +282,41 @@ mod tests {
             let a = fast_atan2(y, x) as f64;
             assert!(wrap_pi(a - t).abs() < 0.005, "{t} {a}");
         }
+    }
+
+    /// Voting clears only the cells the last vote touched: after a vote over one set of points, the
+    /// accumulator and the peaks of a vote over another are those of a fresh transform, spreads
+    /// wrapping past angle 0 included.
+    #[test]
+    fn a_vote_leaves_nothing_of_the_last_one() {
+        let line = |x0: f32, gx: f32, gy: f32| -> Vec<EdgePoint> {
+            (-80..80)
+                .map(|k| EdgePoint {
+                    x: x0 + 0.1 * k as f32,
+                    y: k as f32,
+                    gx,
+                    gy,
+                })
+                .collect()
+        };
+        let first: Vec<EdgePoint> = [line(-30.0, 1.0, 0.0), line(40.0, 0.6, 0.8)].concat();
+        // Gradients just either side of angle 0, whose votes wrap around the accumulator.
+        let second: Vec<EdgePoint> = [line(10.0, 0.9995, -0.03), line(25.0, 0.9995, 0.03)].concat();
+        let mut reused = Hough::new(2.0, 2.0, 200.0);
+        reused.vote(&first, 2);
+        assert!(!reused.peaks(20, 16).is_empty());
+        reused.vote(&second, 3);
+        let mut fresh = Hough::new(2.0, 2.0, 200.0);
+        fresh.vote(&second, 3);
+        assert!(reused.acc == fresh.acc, "cells of the first vote remain");
+        let key = |p: &Peak| (p.votes, p.angle, p.rho);
+        let a: Vec<_> = reused.peaks(20, 16).iter().map(key).collect();
+        let b: Vec<_> = fresh.peaks(20, 16).iter().map(key).collect();
+        assert!(!a.is_empty() && a == b, "{a:?} against {b:?}");
+        assert!(
+            a.iter().any(|&(_, angle, _)| angle > 170),
+            "the votes wrapped past angle 0: {a:?}"
+        );
     }
 
     /// Two antiparallel edges 14 px apart (a dark vertical cable centred at x = 10) pair up.
