@@ -11,15 +11,15 @@ pub(crate) struct EdgePoint {
     pub gy: f32,
 }
 
-/// Gradient images of one resolution level, reused from frame to frame.
+/// Gradient images of one resolution level, reused from frame to frame. Only the magnitude is kept
+/// for every pixel (the threshold needs them all): the gradient's two components are computed again
+/// at the few pixels above the threshold, which leaves a frame two images fewer to write and read.
 pub(crate) struct Gradients {
     width: usize,
     height: usize,
     /// Smooth with a 3x3 binomial before the Sobel operator (a 5x5 derivative-of-binomial kernel).
     smooth: bool,
     smoothed: Vec<u16>,
-    gx: Vec<i16>,
-    gy: Vec<i16>,
     mag: Vec<u16>,
     hist: Vec<u32>,
     nms_spans: Vec<Span>,
@@ -117,8 +117,6 @@ impl Gradients {
             } else {
                 Vec::new()
             },
-            gx: vec![0; width * height],
-            gy: vec![0; width * height],
             mag: vec![0; width * height],
             hist: vec![0; HIST_BINS],
             nms_spans: vec![Span::EMPTY; height],
@@ -188,9 +186,9 @@ impl Gradients {
                 continue;
             }
             if self.smooth {
-                self.sobel_row_smoothed(j, s.lo as usize, s.hi as usize);
+                self.magnitude_row_smoothed(j, s.lo as usize, s.hi as usize);
             } else {
-                self.sobel_row(img, j, s.lo as usize, s.hi as usize);
+                self.magnitude_row(img, j, s.lo as usize, s.hi as usize);
             }
         }
 
@@ -231,7 +229,11 @@ impl Gradients {
                 if m < threshold {
                     continue;
                 }
-                let (gx, gy) = (self.gx[k] as i32, self.gy[k] as i32);
+                let (gx, gy) = if self.smooth {
+                    sobel_smoothed(&self.smoothed, w, k)
+                } else {
+                    sobel(img, w, k)
+                };
                 let (ax, ay) = (gx.abs(), gy.abs());
                 // Neighbours along the gradient, quantised to 8 directions (tan 22.5 deg ~ 5/12).
                 let (sx, sy): (isize, isize) = if 12 * ay < 5 * ax {
@@ -272,8 +274,9 @@ impl Gradients {
         stats
     }
 
-    /// Sobel gradients and L1 magnitude of row `j`, columns `lo..=hi` (all within the border).
-    fn sobel_row(&mut self, img: &[u8], j: usize, lo: usize, hi: usize) {
+    /// The L1 magnitude of the Sobel gradient ([`sobel`]) of row `j`, columns `lo..=hi` (all within
+    /// the border), computed a row at a time.
+    fn magnitude_row(&mut self, img: &[u8], j: usize, lo: usize, hi: usize) {
         let w = self.width;
         let n = hi + 1 - lo;
         let (r0, r1, r2) = (
@@ -292,8 +295,6 @@ impl Gradients {
             &r2[lo..lo + n],
             &r2[lo + 1..lo + 1 + n],
         );
-        let gx = &mut self.gx[j * w + lo..j * w + lo + n];
-        let gy = &mut self.gy[j * w + lo..j * w + lo + n];
         let mag = &mut self.mag[j * w + lo..j * w + lo + n];
         for k in 0..n {
             let x = (b0[k] as i16 - a0[k] as i16)
@@ -301,8 +302,6 @@ impl Gradients {
                 + (b2[k] as i16 - a2[k] as i16);
             let y = (a2[k] as i16 + 2 * c2[k] as i16 + b2[k] as i16)
                 - (a0[k] as i16 + 2 * c0[k] as i16 + b0[k] as i16);
-            gx[k] = x;
-            gy[k] = y;
             mag[k] = x.unsigned_abs() + y.unsigned_abs();
         }
     }
@@ -329,8 +328,8 @@ impl Gradients {
         }
     }
 
-    /// Sobel on the smoothed image, scaled back to plain Sobel units, for row `j`, columns `lo..=hi`.
-    fn sobel_row_smoothed(&mut self, j: usize, lo: usize, hi: usize) {
+    /// The L1 magnitude of [`sobel_smoothed`] for row `j`, columns `lo..=hi`, a row at a time.
+    fn magnitude_row_smoothed(&mut self, j: usize, lo: usize, hi: usize) {
         let w = self.width;
         let n = hi + 1 - lo;
         let s = &self.smoothed;
@@ -340,19 +339,38 @@ impl Gradients {
             &s[(j + 1) * w + lo - 1..],
         );
         let (r0, r1, r2) = (&r0[..n + 2], &r1[..n + 2], &r2[..n + 2]);
-        let gx = &mut self.gx[j * w + lo..j * w + lo + n];
-        let gy = &mut self.gy[j * w + lo..j * w + lo + n];
         let mag = &mut self.mag[j * w + lo..j * w + lo + n];
         for k in 0..n {
             let p = |r: &[u16], d: usize| r[k + d] as i32;
             let x = (p(r0, 2) - p(r0, 0)) + 2 * (p(r1, 2) - p(r1, 0)) + (p(r2, 2) - p(r2, 0));
             let y = (p(r2, 0) + 2 * p(r2, 1) + p(r2, 2)) - (p(r0, 0) + 2 * p(r0, 1) + p(r0, 2));
             let (x, y) = ((x + 8) >> 4, (y + 8) >> 4);
-            gx[k] = x as i16;
-            gy[k] = y as i16;
             mag[k] = (x.unsigned_abs() + y.unsigned_abs()) as u16;
         }
     }
+}
+
+/// The Sobel gradient (gx, gy) of `img` (rows of `w`) at pixel `k`, which is within the border. Its
+/// L1 magnitude is what [`Gradients::magnitude_row`] computes.
+#[inline]
+fn sobel(img: &[u8], w: usize, k: usize) -> (i32, i32) {
+    let p = |d: isize| img[(k as isize + d) as usize] as i32;
+    let w = w as isize;
+    let x = (p(1 - w) - p(-1 - w)) + 2 * (p(1) - p(-1)) + (p(1 + w) - p(-1 + w));
+    let y = (p(w - 1) + 2 * p(w) + p(w + 1)) - (p(-w - 1) + 2 * p(-w) + p(-w + 1));
+    (x, y)
+}
+
+/// The Sobel gradient of the smoothed image at pixel `k`, scaled back to plain Sobel units (rounded:
+/// the smoothed image is 16 times the binomial mean). Its L1 magnitude is what
+/// [`Gradients::magnitude_row_smoothed`] computes.
+#[inline]
+fn sobel_smoothed(s: &[u16], w: usize, k: usize) -> (i32, i32) {
+    let p = |d: isize| s[(k as isize + d) as usize] as i32;
+    let w = w as isize;
+    let x = (p(1 - w) - p(-1 - w)) + 2 * (p(1) - p(-1)) + (p(1 + w) - p(-1 + w));
+    let y = (p(w - 1) + 2 * p(w) + p(w + 1)) - (p(-w - 1) + 2 * p(-w) + p(-w + 1));
+    ((x + 8) >> 4, (y + 8) >> 4)
 }
 
 #[cfg(test)]
@@ -420,6 +438,58 @@ mod tests {
             assert_eq!(out.len(), h - 4);
             let mean = out.iter().map(|p| p.x).sum::<f32>() / out.len() as f32;
             assert!((mean - expected).abs() < 0.05, "{mean} vs {expected}");
+        }
+    }
+
+    /// The gradient computed again at an edge point is the one whose magnitude was kept for it: the
+    /// row functions and the per-pixel ones agree at every pixel, smoothed or not.
+    #[test]
+    fn the_gradient_at_a_pixel_matches_the_magnitude_kept() {
+        let (w, h) = (37, 23);
+        // A noisy, textured image with strong steps, so every sign and size of gradient occurs.
+        let mut state = 0x2545_f491_u32;
+        let img: Vec<u8> = (0..w * h)
+            .map(|k| {
+                state ^= state << 13;
+                state ^= state >> 17;
+                state ^= state << 5;
+                let step = if (k % w) * 3 + (k / w) * 2 > 60 {
+                    180
+                } else {
+                    20
+                };
+                (step + (state % 60) as i32 - 30).clamp(0, 255) as u8
+            })
+            .collect();
+        let map = LevelMap {
+            scale: 1.0,
+            half_width: w as f32 / 2.0,
+            half_height: h as f32 / 2.0,
+        };
+        for smooth in [false, true] {
+            let mut g = Gradients::new(w, h, smooth);
+            let mut out = Vec::new();
+            g.extract(&img, None, 0.0, 0.0, map, usize::MAX, &mut out);
+            let border = if smooth { 2 } else { 1 };
+            let mut checked = 0;
+            for j in border..h - border {
+                for i in border..w - border {
+                    let k = j * w + i;
+                    let (gx, gy) = if smooth {
+                        sobel_smoothed(&g.smoothed, w, k)
+                    } else {
+                        sobel(&img, w, k)
+                    };
+                    assert_eq!(
+                        (gx.abs() + gy.abs()) as u16,
+                        g.mag[k],
+                        "smooth {smooth}, pixel ({i}, {j})"
+                    );
+                    checked += 1;
+                }
+            }
+            assert_eq!(checked, (w - 2 * border) * (h - 2 * border));
+            assert!(!out.is_empty());
         }
     }
 
