@@ -350,11 +350,11 @@ impl Gradients {
     }
 }
 
-/// The Sobel gradient (gx, gy) of `img` (rows of `w`) at pixel `k`, which is within the border. Its
-/// L1 magnitude is what [`Gradients::magnitude_row`] computes.
+/// The Sobel gradient (gx, gy) of `img` (rows of `w`, plain or smoothed pixels) at pixel `k`, which
+/// is within the border. Its L1 magnitude is what [`Gradients::magnitude_row`] computes.
 #[inline]
-fn sobel(img: &[u8], w: usize, k: usize) -> (i32, i32) {
-    let p = |d: isize| img[(k as isize + d) as usize] as i32;
+fn sobel<T: Copy + Into<i32>>(img: &[T], w: usize, k: usize) -> (i32, i32) {
+    let p = |d: isize| img[(k as isize + d) as usize].into();
     let w = w as isize;
     let x = (p(1 - w) - p(-1 - w)) + 2 * (p(1) - p(-1)) + (p(1 + w) - p(-1 + w));
     let y = (p(w - 1) + 2 * p(w) + p(w + 1)) - (p(-w - 1) + 2 * p(-w) + p(-w + 1));
@@ -366,10 +366,7 @@ fn sobel(img: &[u8], w: usize, k: usize) -> (i32, i32) {
 /// [`Gradients::magnitude_row_smoothed`] computes.
 #[inline]
 fn sobel_smoothed(s: &[u16], w: usize, k: usize) -> (i32, i32) {
-    let p = |d: isize| s[(k as isize + d) as usize] as i32;
-    let w = w as isize;
-    let x = (p(1 - w) - p(-1 - w)) + 2 * (p(1) - p(-1)) + (p(1 + w) - p(-1 + w));
-    let y = (p(w - 1) + 2 * p(w) + p(w + 1)) - (p(-w - 1) + 2 * p(-w) + p(-w + 1));
+    let (x, y) = sobel(s, w, k);
     ((x + 8) >> 4, (y + 8) >> 4)
 }
 
