@@ -189,7 +189,7 @@ impl Drop for Process {
 /// Attempts at creating a probe's node. iceoryx2 0.10 now and then fails a node's creation with
 /// `InternalError` while other threads of the same process create nodes at the same moment: the
 /// tests run in parallel threads, each with its own probe, and about one run in 30 of a 22-test
-/// binary met it. A service creates one node per process and never does; a probe tries again.
+/// binary met it. Outside the tests no process creates two nodes at once; a probe tries again.
 const PROBE_ATTEMPTS: usize = 5;
 
 /// The test's own node in namespace `ns`, on `endpoint`.
