@@ -103,37 +103,8 @@ pub(crate) struct EdgeStats {
     pub saturated: bool,
 }
 
-/// Magnitudes above this share the histogram's last bin.
-const MAG_CAP: u16 = 2040;
 const HIST_SHIFT: u32 = 2;
-const HIST_BINS: usize = (MAG_CAP as usize >> HIST_SHIFT) + 1;
-
-/// How many rows ahead the image's pixels under a row's span are asked for.
-const PREFETCH_ROWS: usize = 8;
-
-/// Asks the cache for the pixels of `span` in the image row starting at `row` (one hint per cache
-/// line). A band's rows start at a different column each: the hardware's prefetcher, which follows
-/// strides, misses them, and a frame written by another process has to come from memory.
-#[inline]
-fn prefetch_span(img: &[u8], row: usize, span: Span) {
-    #[cfg(target_arch = "x86_64")]
-    if !span.is_empty() {
-        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-        // The smoothing reads one column either side.
-        let lo = (row + span.lo as usize).saturating_sub(1);
-        let hi = (row + span.hi as usize + 1).min(img.len() - 1);
-        for k in (lo..=hi).step_by(64).chain(std::iter::once(hi)) {
-            // SAFETY: SSE is part of x86_64; a prefetch is a hint that never faults, and the
-            // address is in `img`.
-            unsafe { _mm_prefetch::<_MM_HINT_T0>(img[k..].as_ptr().cast()) };
-        }
-    }
-}
-
-/// The magnitude a histogram bin stands for.
-fn bin_centre(b: u32) -> u32 {
-    (b << HIST_SHIFT) + (1 << HIST_SHIFT) / 2
-}
+const HIST_BINS: usize = (2040 >> HIST_SHIFT) + 1;
 
 impl Gradients {
     pub fn new(width: usize, height: usize, smooth: bool) -> Self {
@@ -203,9 +174,6 @@ impl Gradients {
         if self.smooth {
             grow(&self.sobel_spans, &mut self.smooth_spans, w, 1);
             for j in 1..h - 1 {
-                if let Some(&ahead) = self.smooth_spans.get(j + PREFETCH_ROWS) {
-                    prefetch_span(img, (j + PREFETCH_ROWS + 1) * w, ahead);
-                }
                 let s = self.smooth_spans[j];
                 if !s.is_empty() {
                     self.smooth_row(img, j, s.lo as usize, s.hi as usize);
@@ -224,7 +192,28 @@ impl Gradients {
             }
         }
 
-        let threshold = self.threshold(min_threshold, median_factor);
+        // The threshold from the median of the magnitudes under the spans.
+        self.hist.fill(0);
+        let mut count = 0u64;
+        for (j, s) in self.nms_spans.iter().enumerate() {
+            if s.is_empty() {
+                continue;
+            }
+            for &m in &self.mag[j * w + s.lo as usize..=j * w + s.hi as usize] {
+                self.hist[(m.min(2040) >> HIST_SHIFT) as usize] += 1;
+            }
+            count += (s.hi - s.lo + 1) as u64;
+        }
+        let mut median = 0u32;
+        let mut seen = 0u64;
+        for (b, &n) in self.hist.iter().enumerate() {
+            seen += n as u64;
+            if 2 * seen >= count {
+                median = ((b as u32) << HIST_SHIFT) + (1 << HIST_SHIFT) / 2;
+                break;
+            }
+        }
+        let threshold = (min_threshold.max(median_factor * median as f64)).min(4000.0) as u16;
         let mut stats = EdgeStats { saturated: false };
 
         // Non-maximum suppression and sub-pixel positions.
@@ -283,61 +272,6 @@ impl Gradients {
             }
         }
         stats
-    }
-
-    /// The edge threshold over the magnitudes under `nms_spans`: the larger of `min_threshold` and
-    /// `median_factor` times their median (taken from a histogram of 4-level bins, at the bin's
-    /// centre), at most 4000.
-    ///
-    /// Only a median above `min_threshold / median_factor` moves the threshold, so the pixels below
-    /// the first bin that would are counted first (a comparison per pixel, which vectorises): when
-    /// they are at least half, the threshold is `min_threshold` and the histogram is not built. The
-    /// result is the same either way.
-    fn threshold(&mut self, min_threshold: f64, median_factor: f64) -> u16 {
-        let w = self.width;
-        let spans = || {
-            self.nms_spans
-                .iter()
-                .enumerate()
-                .filter(|(_, s)| !s.is_empty())
-                .map(move |(j, s)| j * w + s.lo as usize..=j * w + s.hi as usize)
-        };
-        let count: u64 = spans().map(|r| r.count() as u64).sum();
-        let with_median =
-            |median: u32| (min_threshold.max(median_factor * median as f64)).min(4000.0) as u16;
-        // The first bin whose centre, as the median, sets a threshold above the minimum.
-        let first_moving = (0..HIST_BINS as u32)
-            .find(|&b| median_factor * bin_centre(b) as f64 > min_threshold)
-            .unwrap_or(HIST_BINS as u32);
-        let cut = first_moving << HIST_SHIFT;
-        // (A cut of 0 leaves nothing below it: the histogram decides, as for no pixel at all.)
-        if cut > 0 && cut <= MAG_CAP as u32 {
-            let below: u64 = spans()
-                .map(|r| {
-                    self.mag[r]
-                        .iter()
-                        .map(|&m| u64::from((m as u32) < cut))
-                        .sum::<u64>()
-                })
-                .sum();
-            if 2 * below >= count {
-                return with_median(0);
-            }
-        }
-        self.hist.fill(0);
-        for r in spans() {
-            for &m in &self.mag[r] {
-                self.hist[(m.min(MAG_CAP) >> HIST_SHIFT) as usize] += 1;
-            }
-        }
-        let mut seen = 0u64;
-        for (b, &n) in self.hist.iter().enumerate() {
-            seen += n as u64;
-            if 2 * seen >= count {
-                return with_median(bin_centre(b as u32));
-            }
-        }
-        with_median(0)
     }
 
     /// The L1 magnitude of the Sobel gradient ([`sobel`]) of row `j`, columns `lo..=hi` (all within
@@ -554,76 +488,6 @@ mod tests {
             assert_eq!(checked, (w - 2 * border) * (h - 2 * border));
             assert!(!out.is_empty());
         }
-    }
-
-    /// The threshold is the rule's (the larger of the minimum and the factor times the median bin's
-    /// centre, at most 4000) whether the median is counted or only found below the cut: magnitudes
-    /// of every spread around the cut, under spans of every length, against the histogram taken
-    /// whole.
-    #[test]
-    fn the_threshold_is_the_rule_with_or_without_the_histogram() {
-        let (w, h) = (50, 20);
-        let mut state = 0x9e37_79b9_u32;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 17;
-            state ^= state << 5;
-            state
-        };
-        let mut g = Gradients::new(w, h, false);
-        let (mut fast, mut counted) = (0, 0);
-        for case in 0..400 {
-            // Magnitudes around a level that moves the threshold or not (40 is the cut of 60 / 1.5).
-            let level = [0, 10, 36, 39, 40, 41, 44, 80, 300, 2100][case % 10];
-            let spread = 1 + next() % 40;
-            for m in g.mag.iter_mut() {
-                *m = (level + next() % spread)
-                    .saturating_sub(spread / 2)
-                    .min(2200) as u16;
-            }
-            for span in g.nms_spans.iter_mut() {
-                let (a, b) = ((next() % w as u32) as u16, (next() % w as u32) as u16);
-                *span = if next() % 5 == 0 {
-                    Span::EMPTY
-                } else {
-                    Span {
-                        lo: a.min(b),
-                        hi: a.max(b),
-                    }
-                };
-            }
-            let (min, factor) = [(60.0, 1.5), (30.0, 3.0), (0.0, 2.0), (1.0, 0.0)][case % 4];
-            let mut hist = vec![0u64; HIST_BINS];
-            let mut count = 0u64;
-            for (j, sp) in g
-                .nms_spans
-                .iter()
-                .enumerate()
-                .filter(|(_, s)| !s.is_empty())
-            {
-                for &m in &g.mag[j * w + sp.lo as usize..=j * w + sp.hi as usize] {
-                    hist[(m.min(MAG_CAP) >> HIST_SHIFT) as usize] += 1;
-                    count += 1;
-                }
-            }
-            let mut seen = 0;
-            let b = hist
-                .iter()
-                .position(|&n| {
-                    seen += n;
-                    2 * seen >= count
-                })
-                .unwrap() as u32;
-            let want = (f64::max(min, factor * bin_centre(b) as f64)).min(4000.0) as u16;
-            assert_eq!(g.threshold(min, factor), want, "case {case}");
-            if want as f64 == min && b > 0 {
-                fast += 1;
-            } else {
-                counted += 1;
-            }
-        }
-        // Both ways were taken, many times.
-        assert!(fast > 50 && counted > 50, "{fast} {counted}");
     }
 
     #[test]

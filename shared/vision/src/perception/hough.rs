@@ -106,14 +106,9 @@ impl Hough {
         let n_angle = self.n_angle;
         for p in edges {
             let phi = fast_atan2(p.gy, p.gx);
-            let a0 = round_positive(phi * inv_angle) as isize;
-            // The angle cells a0 - spread ..= a0 + spread, wrapped; a division only where needed.
-            let a = a0 - spread as isize;
-            let mut a = if (0..n).contains(&a) {
-                a
-            } else {
-                a.rem_euclid(n)
-            } as usize;
+            let a0 = (phi * inv_angle).round() as isize;
+            // The angle cells a0 - spread ..= a0 + spread, wrapped: one division per point.
+            let mut a = (a0 - spread as isize).rem_euclid(n) as usize;
             for _ in 0..=2 * spread {
                 let rho = p.x * self.cos[a] + p.y * self.sin[a];
                 let r = (rho * inv_rho + offset).clamp(0.0, last) as usize;
@@ -252,14 +247,6 @@ fn wrap_pi(a: f64) -> f64 {
     if w > PI { w - TAU } else { w }
 }
 
-/// `x.round()` for a finite `x >= 0` below 2^23, inline (`f32::round` is a call into libm on the
-/// baseline x86_64): `x - trunc(x)` is exact, and a half rounds up, as `round` does.
-#[inline]
-fn round_positive(x: f32) -> u32 {
-    let t = x as u32;
-    t + u32::from(x - t as f32 >= 0.5)
-}
-
 /// atan2 in [0, 2 pi) to within 0.005 rad (enough to pick a Hough cell of a degree or more).
 fn fast_atan2(y: f32, x: f32) -> f32 {
     use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI, TAU};
@@ -378,23 +365,5 @@ mod tests {
             &mut out,
         );
         assert!(out.is_empty());
-    }
-
-    /// The inline rounding is `f32::round` for every value a vote meets, halves and the float just
-    /// below a half included.
-    #[test]
-    fn the_inline_rounding_is_round() {
-        let mut x = 0.0f32;
-        while x < 400.0 {
-            assert_eq!(round_positive(x), x.round() as u32, "{x}");
-            x += 0.0137;
-        }
-        for x in [
-            0.0, 0.5, 1.5, 2.5, 179.5, 0.49999997, 1.4999999, 179.49998, 1e-30,
-        ] {
-            assert_eq!(round_positive(x), x.round() as u32, "{x}");
-            let below = f32::from_bits(x.to_bits().saturating_sub(1));
-            assert_eq!(round_positive(below), below.round() as u32, "{below}");
-        }
     }
 }
