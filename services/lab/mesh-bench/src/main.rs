@@ -80,6 +80,9 @@ struct VehicleArgs {
     /// Write the Markdown report here too.
     #[arg(long)]
     markdown: Option<PathBuf>,
+    /// Keep every frame's latency here (CSV: seq,trial,step,latency_ns), to look into the tail.
+    #[arg(long)]
+    latencies: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -237,6 +240,7 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
         steps_per_trial: (twin.trials.duration_s / scenario.timing.sample_time_s).round() as u32,
         drop_probability: twin.frames.dropped.rate(),
         period_s: scenario.timing.sample_time_s,
+        keep_latencies: args.latencies.clone(),
     };
     let run = mesh_bench::vehicle::run(&setup)?;
     let markdown = run.markdown(args.steps);

@@ -41,6 +41,8 @@ pub struct VehicleSetup {
     pub steps_per_trial: u32,
     pub drop_probability: f64,
     pub period_s: f64,
+    /// Where to keep every frame's latency (the twin's CSV), if anywhere.
+    pub keep_latencies: Option<PathBuf>,
 }
 
 impl VehicleSetup {
@@ -174,6 +176,9 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     }
     let text = std::fs::read_to_string(&latency_file)
         .with_context(|| format!("reading {}", latency_file.display()))?;
+    if let Some(keep) = &setup.keep_latencies {
+        std::fs::write(keep, &text).with_context(|| format!("writing {}", keep.display()))?;
+    }
     let latencies = vehicle_twin::latency::read_latencies(&text)
         .map_err(|e| anyhow::anyhow!("{}: {e}", latency_file.display()))?;
     // The steady window: every service up, from 10 s in (start-up and the first trial's set-up out),
@@ -293,6 +298,7 @@ mod tests {
             steps_per_trial: 450,
             drop_probability: 0.03,
             period_s: 0.2,
+            keep_latencies: None,
         };
         let trials = setup.trials();
         // 451 frames a trial, 3% dropped: 437.5 answered frames a trial at most.
