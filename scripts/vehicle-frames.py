@@ -86,7 +86,7 @@ def frames(stretches):
         # A thread that was already running when the camera woke shares the path's time too.
         k = i - 1
         while k >= 0 and stretches[k][0] > t0 - LOOK_BACK_S:
-            start, end, cpu, thread, delay, ran = stretches[k]
+            start, end, _, thread, _, _ = stretches[k]
             if thread not in PATH and thread != "<idle>" and end > t0:
                 others.append((thread, (start - t0) * 1e3, (end - t0) * 1e3))
             k -= 1
@@ -122,7 +122,7 @@ def main():
     fs.sort(key=lambda f: f["ms"])
     fast, slow = fs[: len(fs) // 2], fs[int(0.95 * len(fs)) :]
     print()
-    print(f"| service | CPU per frame, fastest half / slowest 5% (ms) | scheduling delay, fastest half / slowest 5% (ms) |")
+    print("| service | CPU per frame, fastest half / slowest 5% (ms) | scheduling delay, fastest half / slowest 5% (ms) |")
     print("|---|---:|---:|")
     for thread in PATH[:-1]:
         print(
@@ -134,8 +134,10 @@ def main():
         c = collections.Counter(o[0] for f in group for o in f["others"])
         share = ", ".join(f"{t} {n / len(group):.2f}" for t, n in c.most_common(8))
         print(f"other threads during the path, per frame, {name}: {share}")
-    hit = [f["ms"] for f in fs if any(o[0].startswith("kdamond") for o in f["others"])]
-    rest = [f["ms"] for f in fs if not any(o[0].startswith("kdamond") for o in f["others"])]
+    hit, rest = [], []
+    for f in fs:
+        kdamond = any(o[0].startswith("kdamond") for o in f["others"])
+        (hit if kdamond else rest).append(f["ms"])
     print()
     print(
         f"kdamond ran during {len(hit)} of {len(fs)} paths"
