@@ -151,6 +151,12 @@ enum Hidden {
         #[arg(required = true, num_args = 1..)]
         files: Vec<PathBuf>,
     },
+    /// Several vehicle runs' latencies (their `vehicle --latencies` files): each run's p50, p99 with
+    /// its 95% confidence interval and max, and all their frames together.
+    Latencies {
+        #[arg(required = true, num_args = 1..)]
+        files: Vec<PathBuf>,
+    },
     /// One node of the bare ring (started by the bench itself).
     #[command(hide = true)]
     RingNode {
@@ -192,6 +198,12 @@ fn main() -> ExitCode {
     }
     if let Some(Hidden::Spread { files }) = &command_line.command {
         return match spread(files) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(err) => cli::fail("mesh-bench", err.as_ref()),
+        };
+    }
+    if let Some(Hidden::Latencies { files }) = &command_line.command {
+        return match latencies(files) {
             Ok(()) => ExitCode::SUCCESS,
             Err(err) => cli::fail("mesh-bench", err.as_ref()),
         };
@@ -292,6 +304,24 @@ fn spread(files: &[PathBuf]) -> Result<()> {
         all.push((name, r));
     }
     cli::outln!("{}", mesh_bench::report::spread(&all))?;
+    Ok(())
+}
+
+/// Prints the latency table of several vehicle runs' `--latencies` files.
+fn latencies(files: &[PathBuf]) -> Result<()> {
+    let mut runs = Vec::new();
+    for f in files {
+        let text =
+            std::fs::read_to_string(f).with_context(|| format!("reading {}", f.display()))?;
+        let v = vehicle_twin::latency::read_latencies(&text)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", f.display()))?;
+        let name = f.file_stem().map_or_else(
+            || f.display().to_string(),
+            |s| s.to_string_lossy().into_owned(),
+        );
+        runs.push((name, v));
+    }
+    cli::outln!("{}", mesh_bench::vehicle::latency_table(&runs))?;
     Ok(())
 }
 

@@ -61,6 +61,10 @@ pub struct VehicleRun {
     pub wall_s: f64,
     /// Camera-to-thruster latency per answered frame (ns).
     pub latency: Summary,
+    /// The latency's p99 95% confidence interval (ns), from the frames' order statistics; `None`
+    /// with too few frames to bound it.
+    #[serde(default)]
+    pub p99_interval: Option<[u64; 2]>,
     /// Each process's CPU (per step: per control period) and memory.
     pub processes: Vec<ProcessUse>,
     /// Cores busy with other work meanwhile.
@@ -211,11 +215,58 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
         trials,
         wall_s,
         latency: Summary::of(&latencies),
+        p99_interval: p99_interval(&latencies),
         processes,
         other_cores,
         restarts,
         leftovers: ns.leftovers().len(),
     })
+}
+
+/// Frames enough for a 95% confidence interval of a p99 within the samples (0.99^n <= 0.025).
+pub const P99_FRAMES: usize = 368;
+
+/// The 95% confidence interval of the p99 of `latencies` (any order), as two of them.
+pub fn p99_interval(latencies: &[u64]) -> Option<[u64; 2]> {
+    let (lo, hi) = stats::quantile_interval(latencies.len(), 0.99, 0.95)?;
+    let mut v = latencies.to_vec();
+    v.sort_unstable();
+    Some([v[lo], v[hi]])
+}
+
+/// Several runs' latencies (ns; each a name and its frames) as a Markdown table: each run's frames,
+/// p50, p99 with its 95% interval and max, then all the frames together.
+pub fn latency_table(runs: &[(String, Vec<u64>)]) -> String {
+    let mut md = String::from(
+        "| run | frames | p50 (µs) | p99 (µs) | p99, 95% interval (µs) | max (µs) |\n\
+         |---|---:|---:|---:|---:|---:|\n",
+    );
+    let all: Vec<u64> = runs.iter().flat_map(|(_, v)| v.iter().copied()).collect();
+    let together = format!("all {} together", runs.len());
+    for (name, v) in runs
+        .iter()
+        .map(|(n, v)| (n.as_str(), v))
+        .chain([(together.as_str(), &all)])
+    {
+        let s = Summary::of(v);
+        let interval = p99_interval(v).map_or_else(
+            || "too few frames".to_owned(),
+            |[lo, hi]| format!("{:.0} – {:.0}", lo as f64 / 1e3, hi as f64 / 1e3),
+        );
+        let _ = writeln!(
+            md,
+            "| {name} | {} | {:.0} | {:.0} | {interval} | {:.0} |",
+            s.n,
+            s.p50 as f64 / 1e3,
+            s.p99 as f64 / 1e3,
+            s.max as f64 / 1e3
+        );
+    }
+    md.push_str(
+        "\nTogether, the frames are taken as draws from one distribution: if the machine's speed \
+         moved between the runs, the runs' own intervals say more than the pooled one.\n",
+    );
+    md
 }
 
 impl VehicleRun {
@@ -250,12 +301,26 @@ impl VehicleRun {
         );
         let _ = writeln!(
             md,
-            "| twin frame published → setpoints at the twin's thrusters (target p99 < 2 ms) | {:.0} µs | {:.0} µs | {:.0} µs | {:.0} µs |\n",
+            "| twin frame published → setpoints at the twin's thrusters (target p99 < 1 ms) | {:.0} µs | {:.0} µs | {:.0} µs | {:.0} µs |\n",
             us(self.latency.p50),
             us(self.latency.p99),
             us(self.latency.max),
             self.latency.mean / 1e3
         );
+        let _ = match self.p99_interval {
+            Some([lo, hi]) => writeln!(
+                md,
+                "The p99's 95% confidence interval, from the frames' order statistics: {:.0} – {:.0} µs. \
+                 One run's p99 is known to this much; pool several runs' `--latencies` files with \
+                 `mesh-bench latencies FILE...` for a narrower one.\n",
+                us(lo),
+                us(hi)
+            ),
+            None => writeln!(
+                md,
+                "Too few frames to bound the p99 (a 95% interval needs at least {P99_FRAMES}).\n"
+            ),
+        };
         let _ = writeln!(
             md,
             "| process | CPU per step (µs) | CPU in the run (ms) | RSS (MiB) | peak RSS (MiB) |\n|---|---:|---:|---:|---:|"
@@ -304,5 +369,39 @@ mod tests {
         // 451 frames a trial, 3% dropped: 437.5 answered frames a trial at most.
         assert!(trials as f64 * 437.5 >= 10_000.0, "{trials}");
         assert!(trials <= 25, "{trials}");
+    }
+
+    #[test]
+    fn the_p99_is_given_with_its_interval_when_the_frames_bound_it() {
+        assert!(p99_interval(&vec![1; P99_FRAMES - 1]).is_none());
+        assert!(p99_interval(&vec![1; P99_FRAMES]).is_some());
+        // 1 to 1,000 µs, shuffled: the interval is of the sorted values, around the p99 (990 µs).
+        let run: Vec<u64> = (1..=1000u64)
+            .map(|k| (k * 7919 % 1000 + 1) * 1000)
+            .collect();
+        let (lo, hi) = stats::quantile_interval(1000, 0.99, 0.95).unwrap();
+        let [a, b] = p99_interval(&run).unwrap();
+        assert_eq!([a, b], [(lo as u64 + 1) * 1000, (hi as u64 + 1) * 1000]);
+        assert!(a < 990_000 && 990_000 < b);
+
+        // A short run gets no interval; together the two runs' 1,300 frames do.
+        let short: Vec<u64> = (1..=300u64).map(|k| k * 10_000).collect();
+        let md = latency_table(&[("long".into(), run), ("short".into(), short)]);
+        assert!(
+            md.contains(&format!(
+                "| long | 1000 | 500 | 990 | {} – {} | 1000 |",
+                a / 1000,
+                b / 1000
+            )),
+            "{md}"
+        );
+        assert!(
+            md.contains("| short | 300 | 1500 | 2970 | too few frames | 3000 |"),
+            "{md}"
+        );
+        let together = md
+            .lines()
+            .find(|l| l.starts_with("| all 2 together | 1300 |"));
+        assert!(together.is_some_and(|l| !l.contains("too few")), "{md}");
     }
 }
