@@ -289,42 +289,46 @@ fn drill(args: &DrillArgs) -> Result<()> {
     report(&run, &markdown, args.json.as_deref(), None)
 }
 
-/// Prints the Markdown report and writes it and the figures (JSON) where asked.
+/// Prints several invocations' figures (their `--json` files) side by side.
 fn spread(files: &[PathBuf]) -> Result<()> {
-    let mut all = Vec::new();
-    for f in files {
-        let text =
-            std::fs::read_to_string(f).with_context(|| format!("reading {}", f.display()))?;
-        let r: Results = serde_json::from_str(&text)
-            .with_context(|| format!("{}: not the figures of `mesh-bench --json`", f.display()))?;
-        let name = f.file_stem().map_or_else(
-            || f.display().to_string(),
-            |s| s.to_string_lossy().into_owned(),
-        );
-        all.push((name, r));
-    }
+    let all = read_runs(files, |f, text| {
+        serde_json::from_str::<Results>(text)
+            .with_context(|| format!("{}: not the figures of `mesh-bench --json`", f.display()))
+    })?;
     cli::outln!("{}", mesh_bench::report::spread(&all))?;
     Ok(())
 }
 
 /// Prints the latency table of several vehicle runs' `--latencies` files.
 fn latencies(files: &[PathBuf]) -> Result<()> {
-    let mut runs = Vec::new();
-    for f in files {
-        let text =
-            std::fs::read_to_string(f).with_context(|| format!("reading {}", f.display()))?;
-        let v = vehicle_twin::latency::read_latencies(&text)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", f.display()))?;
-        let name = f.file_stem().map_or_else(
-            || f.display().to_string(),
-            |s| s.to_string_lossy().into_owned(),
-        );
-        runs.push((name, v));
-    }
+    let runs = read_runs(files, |f, text| {
+        vehicle_twin::latency::read_latencies(text)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", f.display()))
+    })?;
     cli::outln!("{}", mesh_bench::vehicle::latency_table(&runs))?;
     Ok(())
 }
 
+/// Each file read and parsed, named after its file name without the extension.
+fn read_runs<T>(
+    files: &[PathBuf],
+    parse: impl Fn(&std::path::Path, &str) -> Result<T>,
+) -> Result<Vec<(String, T)>> {
+    files
+        .iter()
+        .map(|f| {
+            let text =
+                std::fs::read_to_string(f).with_context(|| format!("reading {}", f.display()))?;
+            let name = f.file_stem().map_or_else(
+                || f.display().to_string(),
+                |s| s.to_string_lossy().into_owned(),
+            );
+            Ok((name, parse(f, &text)?))
+        })
+        .collect()
+}
+
+/// Prints the Markdown report and writes it and the figures (JSON) where asked.
 fn report(
     figures: &impl serde::Serialize,
     markdown: &str,
