@@ -23,8 +23,11 @@
 //! repeats and compares the mesh's time per step with (a) + (b).
 //!
 //! `mesh-bench vehicle` ([`vehicle`]) measures the vehicle endpoint instead: camera-to-thruster
-//! latency at the vehicle's 5 Hz over many steps, and every service's CPU and memory; `mesh-bench drill`
-//! ([`drill`]) runs the fault drill of the vehicle's safety layer.
+//! latency at the vehicle's 5 Hz over many steps, and every service's CPU and memory; `mesh-bench ring`
+//! runs the bare ring alone, by default in the vehicle's shape (the twin's frame, a thruster driver's
+//! hop) at the vehicle's 5 Hz: the vehicle's limit, what its processes and IPC cost a frame at cold
+//! caches before any perceiving; `mesh-bench drill` ([`drill`]) runs the fault drill of the vehicle's
+//! safety layer.
 
 pub mod drill;
 pub mod probe;

@@ -4,7 +4,7 @@
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use mesh_bench::report::{Machine, Results, calibrate, load, thousands};
-use mesh_bench::ring::{self, Role};
+use mesh_bench::ring::{self, RingOptions, Role, Shape};
 use mesh_bench::runs::{self, MeshSetup};
 use mesh_bench::vehicle::VehicleSetup;
 use runtime::CommonArgs;
@@ -134,6 +134,32 @@ struct DrillArgs {
     json: Option<PathBuf>,
 }
 
+#[derive(Args)]
+struct RingArgs {
+    /// The path the ring takes.
+    #[arg(long, value_enum, default_value_t = Shape::Vehicle)]
+    shape: Shape,
+    /// Milliseconds between steps (0: each step as soon as the last is answered); default: the
+    /// scenario's sample time (the vehicle's camera period).
+    #[arg(long)]
+    period_ms: Option<f64>,
+    /// Steps timed per run.
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..))]
+    steps: u64,
+    /// Steps not timed at the start of each run.
+    #[arg(long, default_value_t = 10)]
+    warmup: u64,
+    /// Runs; each is reported, and all their steps together.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    repeats: u64,
+    /// Directory holding scenario.toml.
+    #[arg(long, default_value = "config")]
+    config: PathBuf,
+    /// Write every run's figures here as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
 #[derive(Subcommand)]
 enum Hidden {
     /// The flight recorder's cost: the mesh's steps/s with the recorder off and on (pairs of runs,
@@ -157,11 +183,19 @@ enum Hidden {
         #[arg(required = true, num_args = 1..)]
         files: Vec<PathBuf>,
     },
+    /// The bare ring alone, by default in the vehicle's shape at the vehicle's 5 Hz: what the
+    /// vehicle's processes and IPC cost a frame before any perceiving (the vehicle's limit).
+    Ring(RingArgs),
     /// One node of the bare ring (started by the bench itself).
     #[command(hide = true)]
     RingNode {
         #[arg(long, value_enum)]
         role: Role,
+        #[arg(long, value_enum, default_value_t = Shape::Mesh)]
+        shape: Shape,
+        /// A new step every this many microseconds (none: as soon as the last is answered).
+        #[arg(long)]
+        period_us: Option<u64>,
         /// Steps not measured at the start.
         #[arg(long, default_value_t = 201)]
         warmup: u64,
@@ -208,15 +242,30 @@ fn main() -> ExitCode {
             Err(err) => cli::fail("mesh-bench", err.as_ref()),
         };
     }
+    if let Some(Hidden::Ring(args)) = &command_line.command {
+        runtime::init_tracing();
+        return match bare_ring(args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(err) => cli::fail("mesh-bench", err.as_ref()),
+        };
+    }
     if let Some(Hidden::RingNode {
         role,
+        shape,
+        period_us,
         warmup,
         steps,
         common,
     }) = command_line.command
     {
+        let options = RingOptions {
+            shape,
+            warmup,
+            steps,
+            period: period_us.map(std::time::Duration::from_micros),
+        };
         return runtime::run(role.name(), &common, |rt| {
-            let report = ring::run(rt, role, warmup, steps)?;
+            let report = ring::run(rt, role, &options)?;
             cli::outln!("{}", serde_json::to_string(&report)?)?;
             Ok(())
         });
@@ -373,6 +422,12 @@ fn bench(args: &Bench) -> Result<()> {
         warmup,
         ..Default::default()
     };
+    let ring_options = RingOptions {
+        shape: Shape::Mesh,
+        warmup,
+        steps: ring_steps,
+        period: None,
+    };
     let placement = runs::loop_placement(&mesh_file)?;
     results.loop_cpus = placement.cpus.clone();
     results.machine.calibration_ms[0] = calibrate();
@@ -404,21 +459,12 @@ fn bench(args: &Bench) -> Result<()> {
         };
         let in_process = runs::in_process(&config_dir, args.episodes, setup.seed)
             .context("the cores in one process")?;
-        let ring = runs::ring(
-            &exe,
-            &config_dir,
-            warmup,
-            ring_steps,
-            false,
-            None,
-            &placement,
-        )
-        .context("the ring")?;
+        let ring = runs::ring(&exe, &config_dir, &ring_options, false, None, &placement)
+            .context("the ring")?;
         let ring_probe = runs::ring(
             &exe,
             &config_dir,
-            warmup,
-            ring_steps,
+            &ring_options,
             true,
             setup.probe_fifo,
             &placement,
@@ -458,6 +504,63 @@ fn bench(args: &Bench) -> Result<()> {
         args.json.as_deref(),
         args.markdown.as_deref(),
     )
+}
+
+/// The bare ring alone, `--repeats` runs: each run's step latency and hops.
+fn bare_ring(args: &RingArgs) -> Result<()> {
+    let config_dir = args
+        .config
+        .canonicalize()
+        .with_context(|| format!("the config directory {}", args.config.display()))?;
+    let scenario: config::Scenario = config::load(&config_dir.join("scenario.toml"))?;
+    let period_ms = args
+        .period_ms
+        .unwrap_or(1e3 * scenario.timing.sample_time_s);
+    if !(period_ms.is_finite() && period_ms >= 0.0) {
+        anyhow::bail!("--period-ms {period_ms} must be a number >= 0");
+    }
+    let options = RingOptions {
+        shape: args.shape,
+        warmup: args.warmup,
+        steps: args.steps,
+        period: (period_ms > 0.0).then(|| std::time::Duration::from_secs_f64(period_ms / 1e3)),
+    };
+    let exe = std::env::current_exe()?;
+    eprintln!(
+        "mesh-bench: the bare ring in the {:?} shape, {} run(s) of {} steps{} (load average {:.2})",
+        args.shape,
+        args.repeats,
+        args.steps,
+        options
+            .period
+            .map_or(String::new(), |p| format!(", one every {p:?}")),
+        Machine::read().load_before
+    );
+    let mut runs = Vec::new();
+    for r in 0..args.repeats {
+        let run = runs::ring(
+            &exe,
+            &config_dir,
+            &options,
+            false,
+            None,
+            &Default::default(),
+        )
+        .with_context(|| format!("run {} of the ring", r + 1))?;
+        eprintln!(
+            "  run {}/{}: step p50 {:.0} µs, p99 {:.0} µs, {} missed; {:.0} µs of CPU per step; other load {:.2} cores",
+            r + 1,
+            args.repeats,
+            run.step.p50 as f64 / 1e3,
+            run.step.p99 as f64 / 1e3,
+            run.missed,
+            run.cpu_us_per_step,
+            run.other_cores
+        );
+        runs.push(run);
+    }
+    let markdown = mesh_bench::report::ring_markdown(&runs);
+    report(&runs, &markdown, args.json.as_deref(), None)
 }
 
 /// The recorder's cost, pairs of runs of the same seed.

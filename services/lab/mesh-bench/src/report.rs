@@ -603,6 +603,52 @@ fn micros(ns: u64) -> String {
     }
 }
 
+/// The bare ring's runs (`mesh-bench ring`): each run's step latency, with its p99's 95% interval,
+/// the steps missed and the nodes' CPU; then each hop's p50 and p99, run by run.
+pub fn ring_markdown(runs: &[RingRun]) -> String {
+    let us = |ns: u64| format!("{:.0}", ns as f64 / 1e3);
+    let mut md = String::from(
+        "| run | steps | missed | step p50 (µs) | p99 (µs) | p99, 95% interval (µs) | max (µs) | CPU per step, all nodes (µs) | other load (cores) |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for (i, r) in runs.iter().enumerate() {
+        let interval = r.step_p99_interval.map_or_else(
+            || "too few steps".to_owned(),
+            |[lo, hi]| format!("{} – {}", us(lo), us(hi)),
+        );
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {interval} | {} | {:.0} | {:.2} |",
+            i + 1,
+            r.step.n,
+            r.missed,
+            us(r.step.p50),
+            us(r.step.p99),
+            us(r.step.max),
+            r.cpu_us_per_step,
+            r.other_cores
+        );
+    }
+    md.push_str("\n| hop | p50 / p99 (µs), run by run |\n|---|---|\n");
+    let Some(first) = runs.first() else {
+        return md;
+    };
+    for role in first.hops.iter().map(|(role, _)| *role) {
+        let cells: Vec<String> = runs
+            .iter()
+            .filter_map(|r| r.hops.iter().find(|(x, _)| *x == role))
+            .map(|(_, s)| format!("{} / {}", us(s.p50), us(s.p99)))
+            .collect();
+        let _ = writeln!(
+            md,
+            "| {} | {} |",
+            role.hop_in(first.shape),
+            cells.join(", ")
+        );
+    }
+    md
+}
+
 /// A number rounded, with thousands separated by commas.
 pub fn thousands(x: f64) -> String {
     if !x.is_finite() {
@@ -632,6 +678,48 @@ mod tests {
         assert_eq!(thousands(f64::NAN), "–");
         assert_eq!(micros(21_340), "21.3");
         assert_eq!(micros(4_321_000), "4,321");
+    }
+
+    #[test]
+    fn the_ring_table_names_the_vehicles_hops_and_says_when_a_p99_is_unbounded() {
+        let hop = |p50: u64| Summary {
+            n: 100,
+            p50,
+            p99: 2 * p50,
+            ..Default::default()
+        };
+        let run = |p50: u64, interval| RingRun {
+            shape: crate::ring::Shape::Vehicle,
+            step: Summary {
+                n: 1000,
+                p50,
+                p99: 4 * p50,
+                max: 9 * p50,
+                ..Default::default()
+            },
+            step_p99_interval: interval,
+            missed: 2,
+            hops: vec![(Role::Camera, hop(98_000)), (Role::Driver, hop(57_000))],
+            ..Default::default()
+        };
+        let md = ring_markdown(&[
+            run(510_000, Some([1_787_000, 2_052_000])),
+            run(603_000, None),
+        ]);
+        assert!(
+            md.contains("| 1 | 1000 | 2 | 510 | 2040 | 1787 – 2052 | 4590 |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| 2 | 1000 | 2 | 603 | 2412 | too few steps |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| twin/frame → camera | 98 / 196, 98 / 196 |"),
+            "{md}"
+        );
+        assert!(md.contains("| thruster_setpoints → thruster-driver | 57 / 114, 57 / 114 |"));
+        assert!(ring_markdown(&[]).lines().count() < 6);
     }
 
     #[test]

@@ -8,12 +8,19 @@
 //!
 //! Every sender writes its send time (`CLOCK_MONOTONIC`) into the stamp's `time_ns`, so each receiver
 //! measures its hop's one-way latency exactly, and the simulator node each step's round trip.
+//!
+//! In the vehicle's shape ([`Shape::Vehicle`]) the ring is the vehicle endpoint's path with its cores
+//! taken out: the simulator node stands in for the twin (a frame on the twin's camera topic, the
+//! setpoints back on its thruster topic), the camera copies the frame as the camera service does, and
+//! a thruster driver node forwards the setpoints. Paced at the vehicle's period, it is the latency the
+//! vehicle's processes and IPC cost a frame before any perceiving: the vehicle's limit.
 
 use crate::stats::{Summary, now_ns};
 use anyhow::{Context, Result, bail};
+use messages::topics::hardware;
 use messages::{
-    CableObservationMsg, CameraFrameHeader, DofCommand, Stamp, StepStatus, ThrusterSetpoints,
-    VehicleStateMsg, topics,
+    CableObservationMsg, CameraFrameHeader, DofCommand, FrameInbox, FrameOutbox, Inbox, Outbox,
+    Stamp, StepStatus, ThrusterSetpoints, VehicleStateMsg, topics,
 };
 use runtime::lockstep::Gather;
 use runtime::{Flow, Runtime, Stopped, Timer, Wake};
@@ -31,6 +38,41 @@ pub enum Role {
     Sway,
     Yaw,
     Allocator,
+    /// The vehicle's shape only: the thruster driver between the allocator and the thrusters.
+    Driver,
+}
+
+/// Which path the ring takes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
+pub enum Shape {
+    /// The simulation mesh's loop: state → camera → ... → allocator → setpoints → simulator.
+    #[default]
+    Mesh,
+    /// The vehicle endpoint's: twin frame → camera → ... → allocator → thruster driver → twin.
+    Vehicle,
+}
+
+impl Shape {
+    /// The nodes of this shape.
+    pub fn roles(self) -> &'static [Role] {
+        match self {
+            Shape::Mesh => &Role::ALL,
+            Shape::Vehicle => &Role::VEHICLE,
+        }
+    }
+}
+
+/// How a ring runs: its shape, its steps and its pace.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RingOptions {
+    pub shape: Shape,
+    /// Steps not measured at the start (at least one).
+    pub warmup: u64,
+    /// Steps measured.
+    pub steps: u64,
+    /// A new step every `period` (the vehicle's camera clock); `None`: each step as soon as the last
+    /// one is answered.
+    pub period: Option<Duration>,
 }
 
 impl Role {
@@ -44,6 +86,18 @@ impl Role {
         Role::Allocator,
     ];
 
+    /// The nodes of the vehicle's shape.
+    pub const VEHICLE: [Role; 8] = [
+        Role::Simulator,
+        Role::Camera,
+        Role::Perception,
+        Role::Surge,
+        Role::Sway,
+        Role::Yaw,
+        Role::Allocator,
+        Role::Driver,
+    ];
+
     /// The node's process name (shown in logs).
     pub fn name(self) -> &'static str {
         match self {
@@ -54,10 +108,20 @@ impl Role {
             Role::Sway => "ring-sway",
             Role::Yaw => "ring-yaw",
             Role::Allocator => "ring-allocator",
+            Role::Driver => "ring-driver",
         }
     }
 
-    /// The input hop it measures.
+    /// The input hop it measures in the ring of `shape`.
+    pub fn hop_in(self, shape: Shape) -> &'static str {
+        match (shape, self) {
+            (Shape::Vehicle, Role::Simulator) => "twin/thrusters → twin",
+            (Shape::Vehicle, Role::Camera) => "twin/frame → camera",
+            _ => self.hop(),
+        }
+    }
+
+    /// The input hop it measures in the mesh's shape.
     pub fn hop(self) -> &'static str {
         match self {
             Role::Simulator => "thruster_setpoints → simulator",
@@ -67,6 +131,7 @@ impl Role {
             Role::Sway => "cable_observation → sway-behaviour",
             Role::Yaw => "cable_observation → yaw-behaviour",
             Role::Allocator => "command/* → thruster-allocator",
+            Role::Driver => "thruster_setpoints → thruster-driver",
         }
     }
 }
@@ -82,6 +147,13 @@ pub struct NodeReport {
     /// The simulator only: steps timed (after the warm-up) and the time they took.
     pub steps: u64,
     pub wall_ns: u64,
+    /// The simulator only: the step latency's p99 95% confidence interval (see
+    /// [`crate::vehicle::p99_interval`]).
+    #[serde(default)]
+    pub step_p99_interval: Option<[u64; 2]>,
+    /// The simulator only, paced: timed steps not answered before the next one was due.
+    #[serde(default)]
+    pub missed: u64,
 }
 
 impl NodeReport {
@@ -101,9 +173,10 @@ fn restamp(stamp: Stamp) -> Stamp {
 
 /// Runs one node until the ring is done (the simulator: after `warmup + steps` steps; the others:
 /// SIGTERM). Steps up to `warmup` are not measured.
-pub fn run(rt: &Runtime, role: Role, warmup: u64, steps: u64) -> Result<NodeReport> {
+pub fn run(rt: &Runtime, role: Role, options: &RingOptions) -> Result<NodeReport> {
     // The clock starts when the last warm-up step is answered: there is at least one.
-    let warmup = warmup.max(1);
+    let warmup = options.warmup.max(1);
+    let steps = options.steps;
     let mut hop = Vec::with_capacity(steps as usize * if role == Role::Allocator { 3 } else { 1 });
     let mut note = |seq: u64, sent_ns: u64| {
         if seq > warmup {
@@ -116,17 +189,51 @@ pub fn run(rt: &Runtime, role: Role, warmup: u64, steps: u64) -> Result<NodeRepo
         step: None,
         steps: 0,
         wall_ns: 0,
+        step_p99_interval: None,
+        missed: 0,
     };
+    let vehicle = options.shape == Shape::Vehicle;
     let stopped = match role {
         Role::Simulator => {
-            let (stopped, step, wall_ns) = simulator(rt, warmup, steps, &mut note)?;
-            if stopped != Stopped::Done {
+            let ports = if vehicle {
+                SimulatorPorts::twin(rt)?
+            } else {
+                SimulatorPorts::mesh(rt)?
+            };
+            let run = simulator(rt, &ports, options, &mut note)?;
+            if run.stopped != Stopped::Done {
                 bail!("stopped by a signal before the ring's {steps} steps were done");
             }
-            report.step = Some(step);
+            report.step = Some(Summary::of(&run.step_ns));
+            report.step_p99_interval = crate::vehicle::p99_interval(&run.step_ns);
             report.steps = steps;
-            report.wall_ns = wall_ns;
-            stopped
+            report.wall_ns = run.wall_ns;
+            report.missed = run.missed;
+            run.stopped
+        }
+        Role::Camera if vehicle => {
+            // As the vehicle's camera service does: the twin's frame copied into the camera's own.
+            let service = hardware::service_name(hardware::TWIN, &hardware::TWIN_FRAME);
+            let twin = FrameInbox::open_service(rt.node(), &service, &hardware::TWIN_FRAME)?;
+            let frames = rt.frame_outbox()?;
+            rt.serve(&[twin.listener()], Timer::None, |_| {
+                while let Some(sent) = twin.receive_with(|h, image| {
+                    note(h.stamp.seq, h.stamp.time_ns);
+                    let header = CameraFrameHeader {
+                        stamp: restamp(h.stamp),
+                        ..*h
+                    };
+                    frames
+                        .send_with(header, image.len(), |out| {
+                            out.copy_from_slice(image);
+                            Ok::<(), Infallible>(())
+                        })
+                        .map(|_| ())
+                })? {
+                    sent?;
+                }
+                Ok(Flow::Continue)
+            })?
         }
         Role::Camera => {
             let states = rt.inbox(&topics::VEHICLE_STATE)?;
@@ -214,22 +321,130 @@ pub fn run(rt: &Runtime, role: Role, warmup: u64, steps: u64) -> Result<NodeRepo
                 Ok(Flow::Continue)
             })?
         }
+        Role::Driver => {
+            let setpoints = rt.inbox(&topics::THRUSTER_SETPOINTS)?;
+            let service = hardware::service_name(hardware::TWIN, &hardware::TWIN_THRUSTERS);
+            let thrusters = Outbox::open_service(rt.node(), &service, &hardware::TWIN_THRUSTERS)?;
+            rt.serve(&[setpoints.listener()], Timer::None, |_| {
+                for sp in setpoints.drain()? {
+                    note(sp.stamp.seq, sp.stamp.time_ns);
+                    thrusters.send(ThrusterSetpoints {
+                        stamp: restamp(sp.stamp),
+                        ..sp
+                    })?;
+                }
+                Ok(Flow::Continue)
+            })?
+        }
     };
     tracing::debug!(?stopped, "ring node done");
     report.hop = Summary::of(&hop);
     Ok(report)
 }
 
-/// The ring's driver: publishes step `seq`, waits for its setpoints, publishes `seq + 1`; re-sends
-/// while nobody answers (start-up). Returns the step latencies and the time of the measured steps.
+/// Where the simulator node sends a step and hears its answer.
+enum SimulatorPorts {
+    /// The mesh: a vehicle state out, thruster setpoints back.
+    Mesh {
+        states: Outbox<VehicleStateMsg>,
+        setpoints: Inbox<ThrusterSetpoints>,
+    },
+    /// The twin: a camera frame out, the driver's setpoints back on the thruster topic; the state
+    /// too, after the frame, for the bench that follows the ring's progress (nobody is woken by it).
+    Twin {
+        camera: Box<FrameOutbox>,
+        thrusters: Inbox<ThrusterSetpoints>,
+        len: usize,
+        states: Outbox<VehicleStateMsg>,
+    },
+}
+
+impl SimulatorPorts {
+    fn mesh(rt: &Runtime) -> Result<Self> {
+        Ok(SimulatorPorts::Mesh {
+            states: rt.outbox(&topics::VEHICLE_STATE)?,
+            setpoints: rt.inbox(&topics::THRUSTER_SETPOINTS)?,
+        })
+    }
+
+    fn twin(rt: &Runtime) -> Result<Self> {
+        let c = &rt.scenario().camera;
+        let len = (c.width * c.height) as usize;
+        let frame = hardware::service_name(hardware::TWIN, &hardware::TWIN_FRAME);
+        let thrusters = hardware::service_name(hardware::TWIN, &hardware::TWIN_THRUSTERS);
+        Ok(SimulatorPorts::Twin {
+            camera: Box::new(FrameOutbox::open_service(
+                rt.node(),
+                &frame,
+                &hardware::TWIN_FRAME,
+                len,
+            )?),
+            thrusters: Inbox::open_service(rt.node(), &thrusters, &hardware::TWIN_THRUSTERS)?,
+            len,
+            states: rt.outbox(&topics::VEHICLE_STATE)?,
+        })
+    }
+
+    fn listener(&self) -> &iceoryx2::port::listener::Listener<iceoryx2::prelude::ipc::Service> {
+        match self {
+            SimulatorPorts::Mesh { setpoints, .. } => setpoints.listener(),
+            SimulatorPorts::Twin { thrusters, .. } => thrusters.listener(),
+        }
+    }
+
+    fn send(&self, state: VehicleStateMsg, rt: &Runtime) -> Result<()> {
+        match self {
+            SimulatorPorts::Mesh { states, .. } => {
+                states.send(state)?;
+            }
+            SimulatorPorts::Twin {
+                camera,
+                len,
+                states,
+                ..
+            } => {
+                let c = &rt.scenario().camera;
+                let header = CameraFrameHeader {
+                    stamp: state.stamp,
+                    width: c.width,
+                    height: c.height,
+                    truth: Default::default(),
+                };
+                camera.send_with(header, *len, |_| Ok::<(), Infallible>(()))??;
+                states.send(state)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn receive(&self) -> Result<Option<ThrusterSetpoints>> {
+        Ok(match self {
+            SimulatorPorts::Mesh { setpoints, .. } => setpoints.receive()?,
+            SimulatorPorts::Twin { thrusters, .. } => thrusters.receive()?,
+        })
+    }
+}
+
+/// What the simulator node measured.
+struct SimulatorRun {
+    stopped: Stopped,
+    /// Each timed step from its state sent to its setpoints received.
+    step_ns: Vec<u64>,
+    /// The timed steps' wall time.
+    wall_ns: u64,
+    missed: u64,
+}
+
+/// The ring's driver: publishes step `seq`, waits for its setpoints, publishes `seq + 1` (paced: at
+/// the next period, answered or not); re-sends while nobody answers (start-up).
 fn simulator(
     rt: &Runtime,
-    warmup: u64,
-    steps: u64,
+    ports: &SimulatorPorts,
+    options: &RingOptions,
     note: &mut impl FnMut(u64, u64),
-) -> Result<(Stopped, Summary, u64)> {
-    let setpoints = rt.inbox(&topics::THRUSTER_SETPOINTS)?;
-    let states = rt.outbox(&topics::VEHICLE_STATE)?;
+) -> Result<SimulatorRun> {
+    let warmup = options.warmup.max(1);
+    let steps = options.steps;
     let per_episode = rt.scenario().timing.max_steps as u64 + 1;
     let state = |seq: u64| {
         let step = ((seq - 1) % per_episode) as u32;
@@ -247,45 +462,80 @@ fn simulator(
     let total = warmup + steps;
     let mut seq = 1;
     let mut sent = state(seq);
-    states.send(sent)?;
-    let mut step_ns = Vec::with_capacity(steps as usize);
+    ports.send(sent, rt)?;
+    let mut answered = false;
+    let mut next_due = std::time::Instant::now() + options.period.unwrap_or_default();
+    let mut run = SimulatorRun {
+        stopped: Stopped::Signal,
+        step_ns: Vec::with_capacity(steps as usize),
+        wall_ns: 0,
+        missed: 0,
+    };
     let (mut t_start, mut t_end) = (0, 0);
-    let stopped = rt.serve(
-        &[setpoints.listener()],
-        Timer::Timeout(Duration::from_millis(100)),
-        |wake| {
-            while let Some(sp) = setpoints.receive()? {
-                if sp.stamp.seq != seq {
-                    continue;
-                }
-                note(seq, sp.stamp.time_ns);
-                let t = now_ns();
-                if seq > warmup {
-                    step_ns.push(t.saturating_sub(sent.stamp.time_ns));
-                }
-                if seq == warmup {
-                    t_start = t;
-                }
-                if seq == total {
-                    t_end = t;
-                    return Ok(Flow::Stop);
-                }
+    let timer = match options.period {
+        Some(p) => Timer::Interval(p),
+        None => Timer::Timeout(Duration::from_millis(100)),
+    };
+    run.stopped = rt.serve(&[ports.listener()], timer, |wake| {
+        while let Some(sp) = ports.receive()? {
+            if sp.stamp.seq != seq || answered {
+                continue;
+            }
+            answered = true;
+            note(seq, sp.stamp.time_ns);
+            let t = now_ns();
+            if seq > warmup {
+                run.step_ns.push(t.saturating_sub(sent.stamp.time_ns));
+            }
+            if seq == warmup {
+                t_start = t;
+            }
+            if seq == total {
+                t_end = t;
+                return Ok(Flow::Stop);
+            }
+            if options.period.is_none() {
                 seq += 1;
                 sent = state(seq);
-                states.send(sent)?;
+                ports.send(sent, rt)?;
+                answered = false;
             }
-            if wake == Wake::Timer {
-                // Nobody answered for a while: the ring is still starting; say it again.
-                states.send(state(seq))?;
+        }
+        match options.period {
+            // Paced: the next step when it is due, whether this one was answered or not (the camera's
+            // clock does not wait); unanswered at start-up, the same step again.
+            Some(period) => {
+                // The interval's tick may come a hair before the step is due: half a period of
+                // slack, and the schedule kept on the period's grid.
+                let now = std::time::Instant::now();
+                if now + period / 2 >= next_due {
+                    next_due = (next_due + period).max(now + period / 2);
+                    if answered || seq > warmup {
+                        if !answered {
+                            run.missed += 1;
+                        }
+                        if seq >= total {
+                            t_end = now_ns();
+                            return Ok(Flow::Stop);
+                        }
+                        seq += 1;
+                    }
+                    sent = state(seq);
+                    ports.send(sent, rt)?;
+                    answered = false;
+                }
             }
-            Ok(Flow::Continue)
-        },
-    )?;
-    Ok((
-        stopped,
-        Summary::of(&step_ns),
-        t_end.saturating_sub(t_start),
-    ))
+            None => {
+                if wake == Wake::Timer {
+                    // Nobody answered for a while: the ring is still starting; say it again.
+                    ports.send(state(seq), rt)?;
+                }
+            }
+        }
+        Ok(Flow::Continue)
+    })?;
+    run.wall_ns = t_end.saturating_sub(t_start);
+    Ok(run)
 }
 
 /// Reads a node's report from its stdout (the last JSON line).
@@ -310,6 +560,8 @@ mod tests {
             step: None,
             steps: 0,
             wall_ns: 0,
+            step_p99_interval: None,
+            missed: 0,
         };
         let out = format!("noise\n{}\n", serde_json::to_string(&r).unwrap());
         assert_eq!(parse_report(&out).unwrap(), r);

@@ -4,7 +4,7 @@
 
 use crate::probe::{self, Observed, Probe, Progress};
 use crate::procfs::{self, ProcSample, SchedCounts};
-use crate::ring::{self, NodeReport, Role};
+use crate::ring::{self, NodeReport, RingOptions, Role, Shape};
 use crate::stats::{Summary, now_ns};
 use crate::timeline::HopLatencies;
 use anyhow::{Context, Result, bail};
@@ -459,14 +459,21 @@ pub struct RingRun {
     pub probe: Option<ProbeUse>,
     pub probe_hops: Option<HopLatencies>,
     pub leftovers: usize,
+    #[serde(default)]
+    pub shape: Shape,
+    /// Paced: timed steps not answered before the next was due.
+    #[serde(default)]
+    pub missed: u64,
+    /// The step latency's p99 95% confidence interval.
+    #[serde(default)]
+    pub step_p99_interval: Option<[u64; 2]>,
 }
 
 /// Runs the bare ring once: `warmup` steps, then `steps` timed.
 pub fn ring(
     exe: &Path,
     config_dir: &Path,
-    warmup: u64,
-    steps: u64,
+    options: &RingOptions,
     with_probe: bool,
     probe_fifo: Option<i32>,
     placement: &Placement,
@@ -481,12 +488,15 @@ pub fn ring(
         ("RUST_LOG", "warn".to_owned()),
     ];
     let mut nodes = Vec::new();
-    // The driver last: the others are listening by then (it re-sends until answered anyway).
-    for role in Role::ALL.iter().rev() {
-        let args: Vec<String> = [
+    let (warmup, steps) = (options.warmup, options.steps);
+    // The simulator last: the others are listening by then (it re-sends until answered anyway).
+    for role in options.shape.roles().iter().rev() {
+        let mut args: Vec<String> = [
             "ring-node",
             "--role",
             &format!("{role:?}").to_lowercase(),
+            "--shape",
+            &format!("{:?}", options.shape).to_lowercase(),
             "--warmup",
             &warmup.to_string(),
             "--steps",
@@ -494,6 +504,9 @@ pub fn ring(
         ]
         .map(String::from)
         .into();
+        if let Some(p) = options.period {
+            args.extend(["--period-us".to_owned(), p.as_micros().to_string()]);
+        }
         let log = ns.scratch().join(format!("{}.log", role.name()));
         let node = Spawn::new(exe)
             .name(role.name())
@@ -568,7 +581,12 @@ pub fn ring(
     run.steps_per_s = sim.steps_per_s();
     run.steps = sim.steps;
     run.step = sim.step.unwrap_or_default();
-    run.hops = Role::ALL
+    run.shape = options.shape;
+    run.missed = sim.missed;
+    run.step_p99_interval = sim.step_p99_interval;
+    run.hops = options
+        .shape
+        .roles()
         .iter()
         .filter_map(|role| {
             reports
