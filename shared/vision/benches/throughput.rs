@@ -13,7 +13,7 @@ use model::{Pose, PoseRate, VehicleState, Velocity};
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 use vision::sampling::PoseSampler;
-use vision::{Frame, Perception, Renderer, SimulatedVision};
+use vision::{Frame, Perception, Renderer, SimulatedVision, pace};
 
 const FRAMES: usize = 200;
 const RUNS: usize = 9;
@@ -51,27 +51,7 @@ fn run() -> std::io::Result<()> {
         })
         .collect();
     // A path along the cable at 0.3 m/s with some sway and yaw: the tracking case.
-    let mut state = VehicleState {
-        pose: Pose {
-            x: 0.0,
-            y: 0.05,
-            psi: -0.15,
-        },
-        velocity: Velocity {
-            u: 0.3,
-            v: 0.02,
-            r: 0.03,
-        },
-    };
-    let path: Vec<(Pose, PoseRate)> = (0..FRAMES)
-        .map(|k| {
-            state.velocity.r = 0.05 * (k as f64 * 0.1).sin();
-            let rate = state.pose_rate();
-            let now = (state.pose, rate);
-            state.pose = state.pose.advanced(&rate, 0.2);
-            now
-        })
-        .collect();
+    let path = pace::tracking_path(FRAMES, 0.2);
 
     cli::outln!("| what (320x240, one core) | clean: frames/s | all effects: frames/s |")?;
     cli::outln!("|---|---|---|")?;
@@ -106,11 +86,7 @@ fn run() -> std::io::Result<()> {
             }
         });
 
-        let sequence: Vec<Frame> = path
-            .iter()
-            .enumerate()
-            .map(|(k, (pose, rate))| renderer.render_frame(pose, rate, k as u64))
-            .collect();
+        let sequence: Vec<Frame> = pace::render_path(&mut renderer, &path);
         track_fps[c] = fps(|| {
             perception.reset();
             for f in &sequence {
@@ -189,18 +165,7 @@ const PACED: usize = 50;
 /// (between two, the thread sleeps and the caches go cold, as on the vehicle) and back to back.
 fn paced_tracking(perception: &mut Perception, sequence: &[Frame]) -> [[f64; 2]; 2] {
     let mut time = |pause: Option<Duration>| {
-        perception.reset();
-        let us: Vec<f64> = sequence[..PACED]
-            .iter()
-            .map(|f| {
-                if let Some(p) = pause {
-                    std::thread::sleep(p);
-                }
-                let start = Instant::now();
-                black_box(perception.process(f.view(), 0.2).unwrap());
-                start.elapsed().as_secs_f64() * 1e6
-            })
-            .collect();
+        let us = pace::perceive_paced(perception, &sequence[..PACED], 0.2, pause);
         [
             stats::median(us.iter().copied()),
             stats::percentile(us, 0.9),

@@ -12,6 +12,7 @@
 //!   images in the loop instead of ideal geometry.
 //! - [`Frame`] / [`ImageView`]: owned and borrowed 8-bit images; PGM and PNG files.
 //! - [`sampling`]: poses that put the cable at a given x_g and Theta (tests, benchmarks, data sets).
+//! - [`pace`]: perception timed frame by frame along a path, at the vehicle's pace or back to back.
 //!
 //! Coordinates are `model::camera`'s: centred pixels, columns right, rows down; Theta in
 //! (-pi/2, pi/2] from the image's vertical, positive when the cable's top leans right; x_g and y_g
@@ -20,6 +21,7 @@
 mod error;
 pub mod geometry;
 mod image;
+pub mod pace;
 mod perception;
 mod render;
 pub mod rng;

@@ -83,6 +83,10 @@ struct VehicleArgs {
     /// Keep every frame's latency here (CSV: seq,trial,step,latency_ns), to look into the tail.
     #[arg(long)]
     latencies: Option<PathBuf>,
+    /// Then measure the vehicle's limit at the same pace: the bare ring in the vehicle's shape (as
+    /// many frames as were timed, at most 1,000) and perception's core alone (100 frames).
+    #[arg(long)]
+    limit: bool,
 }
 
 #[derive(Args)]
@@ -303,7 +307,33 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
         period_s: scenario.timing.sample_time_s,
         keep_latencies: args.latencies.clone(),
     };
-    let run = mesh_bench::vehicle::run(&setup)?;
+    let mut run = mesh_bench::vehicle::run(&setup)?;
+    if args.limit {
+        let period = std::time::Duration::from_secs_f64(setup.period_s / setup.speed);
+        let frames = (run.latency.n as u64).clamp(1, 1000);
+        eprintln!(
+            "mesh-bench: vehicle: its limit, the bare ring ({frames} frames, one every {period:?}) and perception's core"
+        );
+        let options = RingOptions {
+            shape: Shape::Vehicle,
+            warmup: 10,
+            steps: frames,
+            period: Some(period),
+        };
+        let ring = runs::ring(
+            &exe,
+            &setup.config_dir,
+            &options,
+            false,
+            None,
+            &Default::default(),
+        )
+        .context("the vehicle's limit: the bare ring")?;
+        let perception =
+            mesh_bench::vehicle::perception_at_pace(&scenario, 100, setup.period_s, period)
+                .context("the vehicle's limit: perception's core")?;
+        run.limit = Some(mesh_bench::vehicle::VehicleLimit { ring, perception });
+    }
     let markdown = run.markdown(args.steps);
     report(
         &run,

@@ -9,7 +9,7 @@
 //! included. Meanwhile the bench reads each process in `/proc` every [`TICK`].
 
 use crate::procfs;
-use crate::runs::{ProcessUse, Tick, brief_step_one, spawn, usage};
+use crate::runs::{ProcessUse, RingRun, Tick, brief_step_one, spawn, usage};
 use crate::stats::{Summary, now_ns};
 use anyhow::{Context, Result, bail};
 use runtime::Namespace;
@@ -75,6 +75,44 @@ pub struct VehicleRun {
     pub leftovers: usize,
     /// The flight record's size (every part, every frame), bytes, and the frames timed with it.
     pub record_bytes: u64,
+    /// The vehicle's limit on the same machine, measured after the run (`--limit`).
+    #[serde(default)]
+    pub limit: Option<VehicleLimit>,
+}
+
+/// What the vehicle's path costs on this machine without the vehicle's work: the bare ring in the
+/// vehicle's shape at the same pace (every process and hop of the path, nothing perceived), and
+/// perception's core alone at that pace, the one piece of the path's work the ring leaves out (the
+/// behaviours', allocator's and driver's arithmetic takes microseconds).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct VehicleLimit {
+    pub ring: RingRun,
+    /// Perception tracking along a path on one thread, the frames a period apart (ns per frame).
+    pub perception: Summary,
+}
+
+impl VehicleLimit {
+    /// The limit's p50: the ring's plus perception's.
+    pub fn p50_ns(&self) -> u64 {
+        self.ring.step.p50 + self.perception.p50
+    }
+}
+
+/// Perception's core at the vehicle's pace: `frames` frames along a tracking path, each taken
+/// `dt_s` after the last (the scenario's sample time) and perceived `pause` after it.
+pub fn perception_at_pace(
+    scenario: &config::Scenario,
+    frames: usize,
+    dt_s: f64,
+    pause: Duration,
+) -> Result<Summary> {
+    let mut renderer = vision::Renderer::from_scenario(scenario, 1)?;
+    let path = vision::pace::tracking_path(frames, dt_s);
+    let sequence = vision::pace::render_path(&mut renderer, &path);
+    let mut perception = vision::Perception::from_scenario(scenario)?;
+    let us = vision::pace::perceive_paced(&mut perception, &sequence, dt_s, Some(pause));
+    let ns: Vec<u64> = us.iter().map(|u| (u * 1e3).round() as u64).collect();
+    Ok(Summary::of(&ns))
 }
 
 /// Runs step one in simulation, then the vehicle mesh at `speed`, and measures it.
@@ -220,6 +258,7 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
         other_cores,
         restarts,
         leftovers: ns.leftovers().len(),
+        limit: None,
     })
 }
 
@@ -332,6 +371,30 @@ impl VehicleRun {
                 p.name, p.cpu_us_per_step, p.cpu_ms, p.rss_mib, p.hwm_mib
             );
         }
+        if let Some(limit) = &self.limit {
+            let ring = &limit.ring.step;
+            let interval = limit.ring.step_p99_interval.map_or_else(
+                || "too few frames to bound it".to_owned(),
+                |[lo, hi]| format!("95% interval {:.0} – {:.0} µs", us(lo), us(hi)),
+            );
+            let _ = writeln!(
+                md,
+                "The vehicle's limit on this machine, measured after the run at the same pace: \
+                 the bare ring in the vehicle's shape (`mesh-bench ring`, {} frames, {} missed) \
+                 p50 {:.0} µs, p99 {:.0} µs ({interval}); perception's core alone p50 {:.0} µs \
+                 ({} frames). The vehicle's p50 is {:.2}x the ring's plus perception's ({:.0} µs); \
+                 its p99 {:.2}x the ring's.\n",
+                ring.n,
+                limit.ring.missed,
+                us(ring.p50),
+                us(ring.p99),
+                us(limit.perception.p50),
+                limit.perception.n,
+                self.latency.p50 as f64 / limit.p50_ns().max(1) as f64,
+                us(limit.p50_ns()),
+                self.latency.p99 as f64 / ring.p99.max(1) as f64,
+            );
+        }
         // A minute at the vehicle's pace is 60 / period frames; the timed frames are the answered ones.
         let frames = (self.latency.n as f64).max(1.0);
         let _ = writeln!(
@@ -369,6 +432,51 @@ mod tests {
         // 451 frames a trial, 3% dropped: 437.5 answered frames a trial at most.
         assert!(trials as f64 * 437.5 >= 10_000.0, "{trials}");
         assert!(trials <= 25, "{trials}");
+    }
+
+    #[test]
+    fn the_limit_is_the_ring_plus_perception_and_the_report_compares_with_it() {
+        let scenario = config::Scenario::default();
+        let perception = perception_at_pace(&scenario, 5, 0.2, Duration::from_millis(1)).unwrap();
+        assert_eq!(perception.n, 5);
+        assert!(perception.p50 > 0 && perception.p50 <= perception.max);
+
+        let summary = |p50: u64, p99: u64| Summary {
+            n: 1000,
+            p50,
+            p99,
+            max: p99,
+            ..Default::default()
+        };
+        let limit = VehicleLimit {
+            ring: RingRun {
+                step: summary(600_000, 2_000_000),
+                step_p99_interval: Some([1_800_000, 2_300_000]),
+                ..Default::default()
+            },
+            perception: Summary {
+                n: 100,
+                ..summary(400_000, 500_000)
+            },
+        };
+        assert_eq!(limit.p50_ns(), 1_000_000);
+        let run = VehicleRun {
+            latency: summary(1_100_000, 2_500_000),
+            limit: Some(limit),
+            ..Default::default()
+        };
+        let md = run.markdown(1000);
+        assert!(
+            md.contains("p50 600 µs, p99 2000 µs (95% interval 1800 – 2300 µs)"),
+            "{md}"
+        );
+        assert!(
+            md.contains("perception's core alone p50 400 µs (100 frames)"),
+            "{md}"
+        );
+        assert!(md.contains("The vehicle's p50 is 1.10x the ring's plus perception's (1000 µs); its p99 1.25x the ring's."), "{md}");
+        let without = VehicleRun { limit: None, ..run };
+        assert!(!without.markdown(1000).contains("limit"));
     }
 
     #[test]
