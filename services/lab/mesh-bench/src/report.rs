@@ -1,6 +1,6 @@
 //! The repeats' results, their medians, and the Markdown tables.
 
-use crate::ring::Role;
+use crate::ring::Shape;
 use crate::runs::{InProcessRun, MeshRun, ProcessUse, RingRun};
 use crate::stats::{Summary, median};
 use crate::timeline::{HOPS, SLOWEST, SlowStep};
@@ -409,7 +409,8 @@ impl Results {
             out,
             "Bare ring without the probe, exact (sender-stamped) one-way latency per hop, p50/p99 µs: "
         );
-        let parts: Vec<String> = Role::ALL
+        let parts: Vec<String> = Shape::Mesh
+            .roles()
             .iter()
             .map(|role| {
                 let s = Summary::median_of(
@@ -668,6 +669,7 @@ pub fn thousands(x: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ring::Role;
 
     #[test]
     fn numbers_read_well() {
@@ -689,7 +691,7 @@ mod tests {
             ..Default::default()
         };
         let run = |p50: u64, interval| RingRun {
-            shape: crate::ring::Shape::Vehicle,
+            shape: Shape::Vehicle,
             step: Summary {
                 n: 1000,
                 p50,

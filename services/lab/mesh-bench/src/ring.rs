@@ -56,8 +56,8 @@ impl Shape {
     /// The nodes of this shape.
     pub fn roles(self) -> &'static [Role] {
         match self {
-            Shape::Mesh => &Role::ALL,
-            Shape::Vehicle => &Role::VEHICLE,
+            Shape::Mesh => &Role::ALL[..7],
+            Shape::Vehicle => &Role::ALL,
         }
     }
 }
@@ -76,18 +76,8 @@ pub struct RingOptions {
 }
 
 impl Role {
-    pub const ALL: [Role; 7] = [
-        Role::Simulator,
-        Role::Camera,
-        Role::Perception,
-        Role::Surge,
-        Role::Sway,
-        Role::Yaw,
-        Role::Allocator,
-    ];
-
-    /// The nodes of the vehicle's shape.
-    pub const VEHICLE: [Role; 8] = [
+    /// Every node: the mesh's seven, then the vehicle's thruster driver.
+    pub const ALL: [Role; 8] = [
         Role::Simulator,
         Role::Camera,
         Role::Perception,
