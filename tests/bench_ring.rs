@@ -62,16 +62,30 @@ fn each_shape_passes_every_step_through_each_of_its_nodes() {
     // The vehicle's shape has the thruster driver between the allocator and the twin; the mesh's not.
     for (shape, name) in [(Shape::Vehicle, "vehicle"), (Shape::Mesh, "mesh")] {
         let ns = Namespace::new("rs");
+        let dir = ns.scratch().join("latencies");
         let runs = ring(
             &ns,
             name,
-            &["--shape", name, "--period-ms", "0", "--steps", "60"],
+            &[
+                "--shape",
+                name,
+                "--period-ms",
+                "0",
+                "--steps",
+                "60",
+                "--latencies",
+                dir.to_str().unwrap(),
+            ],
         );
         assert_eq!(runs.len(), 1);
         let run = &runs[0];
         assert_eq!(run.shape, shape);
         assert_eq!(run.missed, 0);
         every_hop_measured(run, shape, 60);
+        // The steps' file, as the vehicle's latency file, holds the steps the summary was made of.
+        let text = std::fs::read_to_string(dir.join("ring-1.csv")).expect("the run's latencies");
+        let steps = vehicle_twin::latency::read_latencies(&text).expect("a latency file");
+        assert_eq!(stats::Summary::of(&steps), run.step);
     }
 }
 

@@ -162,6 +162,10 @@ struct RingArgs {
     /// Write every run's figures here as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Keep every step's latency in this directory, a file per run (ring-1.csv, ...; the vehicle's
+    /// CSV: `mesh-bench latencies DIR/*.csv` pools them).
+    #[arg(long)]
+    latencies: Option<PathBuf>,
 }
 
 #[derive(Subcommand)]
@@ -200,6 +204,9 @@ enum Hidden {
         /// A new step every this many microseconds (none: as soon as the last is answered).
         #[arg(long)]
         period_us: Option<u64>,
+        /// The simulator node: keep every timed step's latency here (CSV).
+        #[arg(long)]
+        latencies: Option<PathBuf>,
         /// Steps not measured at the start.
         #[arg(long, default_value_t = 201)]
         warmup: u64,
@@ -257,6 +264,7 @@ fn main() -> ExitCode {
         role,
         shape,
         period_us,
+        latencies,
         warmup,
         steps,
         common,
@@ -267,6 +275,7 @@ fn main() -> ExitCode {
             warmup,
             steps,
             period: period_us.map(std::time::Duration::from_micros),
+            latencies,
         };
         return runtime::run(role.name(), &common, |rt| {
             let report = ring::run(rt, role, &options)?;
@@ -319,6 +328,7 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
             warmup: 10,
             steps: frames,
             period: Some(period),
+            latencies: None,
         };
         let ring = runs::ring(
             &exe,
@@ -457,6 +467,7 @@ fn bench(args: &Bench) -> Result<()> {
         warmup,
         steps: ring_steps,
         period: None,
+        latencies: None,
     };
     let placement = runs::loop_placement(&mesh_file)?;
     results.loop_cpus = placement.cpus.clone();
@@ -549,12 +560,16 @@ fn bare_ring(args: &RingArgs) -> Result<()> {
     if !(period_ms.is_finite() && period_ms >= 0.0) {
         anyhow::bail!("--period-ms {period_ms} must be a number >= 0");
     }
-    let options = RingOptions {
+    let mut options = RingOptions {
         shape: args.shape,
         warmup: args.warmup,
         steps: args.steps,
         period: (period_ms > 0.0).then(|| std::time::Duration::from_secs_f64(period_ms / 1e3)),
+        latencies: None,
     };
+    if let Some(dir) = &args.latencies {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
     let exe = std::env::current_exe()?;
     eprintln!(
         "mesh-bench: the bare ring in the {:?} shape, {} run(s) of {} steps{} (load average {:.2})",
@@ -568,6 +583,10 @@ fn bare_ring(args: &RingArgs) -> Result<()> {
     );
     let mut runs = Vec::new();
     for r in 0..args.repeats {
+        options.latencies = args
+            .latencies
+            .as_ref()
+            .map(|dir| dir.join(format!("ring-{}.csv", r + 1)));
         let run = runs::ring(
             &exe,
             &config_dir,

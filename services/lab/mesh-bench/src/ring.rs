@@ -27,6 +27,7 @@ use runtime::{Flow, Runtime, Stopped, Timer, Wake};
 use serde::{Deserialize, Serialize};
 use std::convert::Infallible;
 use std::time::Duration;
+use vehicle_twin::latency::{HEADER, Sample, write_sample};
 
 /// A node of the ring: which process of the mesh it stands in for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, Serialize, Deserialize)]
@@ -63,7 +64,7 @@ impl Shape {
 }
 
 /// How a ring runs: its shape, its steps and its pace.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct RingOptions {
     pub shape: Shape,
     /// Steps not measured at the start (at least one).
@@ -73,6 +74,9 @@ pub struct RingOptions {
     /// A new step every `period` (the vehicle's camera clock); `None`: each step as soon as the last
     /// one is answered.
     pub period: Option<Duration>,
+    /// Where the simulator node keeps every timed step's latency (the vehicle's latency CSV), if
+    /// anywhere.
+    pub latencies: Option<std::path::PathBuf>,
 }
 
 impl Role {
@@ -194,8 +198,16 @@ pub fn run(rt: &Runtime, role: Role, options: &RingOptions) -> Result<NodeReport
             if run.stopped != Stopped::Done {
                 bail!("stopped by a signal before the ring's {steps} steps were done");
             }
-            report.step = Some(Summary::of(&run.step_ns));
-            report.step_p99_interval = crate::vehicle::p99_interval(&run.step_ns);
+            let step_ns: Vec<u64> = run
+                .samples
+                .iter()
+                .map(|s| s.latency.as_nanos() as u64)
+                .collect();
+            report.step = Some(Summary::of(&step_ns));
+            report.step_p99_interval = crate::vehicle::p99_interval(&step_ns);
+            if let Some(path) = &options.latencies {
+                write_latencies(path, &run.samples)?;
+            }
             report.steps = steps;
             report.wall_ns = run.wall_ns;
             report.missed = run.missed;
@@ -419,7 +431,7 @@ impl SimulatorPorts {
 struct SimulatorRun {
     stopped: Stopped,
     /// Each timed step from its state sent to its setpoints received.
-    step_ns: Vec<u64>,
+    samples: Vec<Sample>,
     /// The timed steps' wall time.
     wall_ns: u64,
     missed: u64,
@@ -457,7 +469,7 @@ fn simulator(
     let mut next_due = std::time::Instant::now() + options.period.unwrap_or_default();
     let mut run = SimulatorRun {
         stopped: Stopped::Signal,
-        step_ns: Vec::with_capacity(steps as usize),
+        samples: Vec::with_capacity(steps as usize),
         wall_ns: 0,
         missed: 0,
     };
@@ -475,7 +487,12 @@ fn simulator(
             note(seq, sp.stamp.time_ns);
             let t = now_ns();
             if seq > warmup {
-                run.step_ns.push(t.saturating_sub(sent.stamp.time_ns));
+                run.samples.push(Sample {
+                    seq,
+                    trial: sent.stamp.episode,
+                    step: sent.stamp.step,
+                    latency: Duration::from_nanos(t.saturating_sub(sent.stamp.time_ns)),
+                });
             }
             if seq == warmup {
                 t_start = t;
@@ -526,6 +543,21 @@ fn simulator(
     })?;
     run.wall_ns = t_end.saturating_sub(t_start);
     Ok(run)
+}
+
+/// Writes the steps' latencies as the vehicle twin writes its frames' (`mesh-bench latencies` reads
+/// both).
+fn write_latencies(path: &std::path::Path, samples: &[Sample]) -> Result<()> {
+    use std::io::Write as _;
+    let mut out = std::io::BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+    );
+    writeln!(out, "{HEADER}")?;
+    for s in samples {
+        write_sample(&mut out, s)?;
+    }
+    out.flush()
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// Reads a node's report from its stdout (the last JSON line).

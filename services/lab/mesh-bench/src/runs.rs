@@ -507,6 +507,9 @@ pub fn ring(
         if let Some(p) = options.period {
             args.extend(["--period-us".to_owned(), p.as_micros().to_string()]);
         }
+        if let (Role::Simulator, Some(path)) = (role, &options.latencies) {
+            args.extend(["--latencies".to_owned(), path.display().to_string()]);
+        }
         let log = ns.scratch().join(format!("{}.log", role.name()));
         let node = Spawn::new(exe)
             .name(role.name())
