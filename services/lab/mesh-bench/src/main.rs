@@ -219,75 +219,53 @@ enum Hidden {
 }
 
 fn main() -> ExitCode {
-    let command_line = Cli::parse();
-    if let Some(Hidden::Record(args)) = &command_line.command {
-        runtime::init_tracing();
-        return match record(args) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(err) => cli::fail("mesh-bench", err.as_ref()),
-        };
-    }
-    if let Some(Hidden::Vehicle(args)) = &command_line.command {
-        runtime::init_tracing();
-        return match vehicle(args) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(err) => cli::fail("mesh-bench", err.as_ref()),
-        };
-    }
-    if let Some(Hidden::Drill(args)) = &command_line.command {
-        runtime::init_tracing();
-        return match drill(args) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(err) => cli::fail("mesh-bench", err.as_ref()),
-        };
-    }
-    if let Some(Hidden::Spread { files }) = &command_line.command {
-        return match spread(files) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(err) => cli::fail("mesh-bench", err.as_ref()),
-        };
-    }
-    if let Some(Hidden::Latencies { files }) = &command_line.command {
-        return match latencies(files) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(err) => cli::fail("mesh-bench", err.as_ref()),
-        };
-    }
-    if let Some(Hidden::Ring(args)) = &command_line.command {
-        runtime::init_tracing();
-        return match bare_ring(args) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(err) => cli::fail("mesh-bench", err.as_ref()),
-        };
-    }
-    if let Some(Hidden::RingNode {
-        role,
-        shape,
-        period_us,
-        latencies,
-        warmup,
-        steps,
-        common,
-    }) = command_line.command
-    {
-        let options = RingOptions {
+    let Cli {
+        bench: args,
+        command,
+    } = Cli::parse();
+    let result = match command {
+        // A ring node is a process of the ring: `runtime::run` sets it up and reports how it ended.
+        Some(Hidden::RingNode {
+            role,
             shape,
+            period_us,
+            latencies: keep,
             warmup,
             steps,
-            period: period_us.map(std::time::Duration::from_micros),
-            latencies,
-        };
-        return runtime::run(role.name(), &common, |rt| {
-            let report = ring::run(rt, role, &options)?;
-            cli::outln!("{}", serde_json::to_string(&report)?)?;
-            Ok(())
-        });
-    }
-    runtime::init_tracing();
-    match bench(&command_line.bench) {
+            common,
+        }) => {
+            let options = RingOptions {
+                shape,
+                warmup,
+                steps,
+                period: period_us.map(std::time::Duration::from_micros),
+                latencies: keep,
+            };
+            return runtime::run(role.name(), &common, |rt| {
+                let report = ring::run(rt, role, &options)?;
+                cli::outln!("{}", serde_json::to_string(&report)?)?;
+                Ok(())
+            });
+        }
+        // Reading files of runs already made: nothing to log.
+        Some(Hidden::Spread { files }) => spread(&files),
+        Some(Hidden::Latencies { files }) => latencies(&files),
+        Some(Hidden::Record(a)) => logged(|| record(&a)),
+        Some(Hidden::Vehicle(a)) => logged(|| vehicle(&a)),
+        Some(Hidden::Drill(a)) => logged(|| drill(&a)),
+        Some(Hidden::Ring(a)) => logged(|| bare_ring(&a)),
+        None => logged(|| bench(&args)),
+    };
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => cli::fail("mesh-bench", err.as_ref()),
     }
+}
+
+/// Runs a benchmark with its progress logged.
+fn logged(bench: impl FnOnce() -> Result<()>) -> Result<()> {
+    runtime::init_tracing();
+    bench()
 }
 
 fn vehicle(args: &VehicleArgs) -> Result<()> {

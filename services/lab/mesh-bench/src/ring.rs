@@ -356,7 +356,8 @@ enum SimulatorPorts {
     Twin {
         camera: Box<FrameOutbox>,
         thrusters: Inbox<ThrusterSetpoints>,
-        len: usize,
+        /// The frame's width and height (the scenario's camera).
+        size: (u32, u32),
         states: Outbox<VehicleStateMsg>,
     },
 }
@@ -371,7 +372,6 @@ impl SimulatorPorts {
 
     fn twin(rt: &Runtime) -> Result<Self> {
         let c = &rt.scenario().camera;
-        let len = (c.width * c.height) as usize;
         let frame = hardware::service_name(hardware::TWIN, &hardware::TWIN_FRAME);
         let thrusters = hardware::service_name(hardware::TWIN, &hardware::TWIN_THRUSTERS);
         Ok(SimulatorPorts::Twin {
@@ -379,10 +379,10 @@ impl SimulatorPorts {
                 rt.node(),
                 &frame,
                 &hardware::TWIN_FRAME,
-                len,
+                (c.width * c.height) as usize,
             )?),
             thrusters: Inbox::open_service(rt.node(), &thrusters, &hardware::TWIN_THRUSTERS)?,
-            len,
+            size: (c.width, c.height),
             states: rt.outbox(&topics::VEHICLE_STATE)?,
         })
     }
@@ -394,25 +394,25 @@ impl SimulatorPorts {
         }
     }
 
-    fn send(&self, state: VehicleStateMsg, rt: &Runtime) -> Result<()> {
+    fn send(&self, state: VehicleStateMsg) -> Result<()> {
         match self {
             SimulatorPorts::Mesh { states, .. } => {
                 states.send(state)?;
             }
             SimulatorPorts::Twin {
                 camera,
-                len,
+                size: (width, height),
                 states,
                 ..
             } => {
-                let c = &rt.scenario().camera;
                 let header = CameraFrameHeader {
                     stamp: state.stamp,
-                    width: c.width,
-                    height: c.height,
+                    width: *width,
+                    height: *height,
                     truth: Default::default(),
                 };
-                camera.send_with(header, *len, |_| Ok::<(), Infallible>(()))??;
+                let len = (*width * *height) as usize;
+                camera.send_with(header, len, |_| Ok::<(), Infallible>(()))??;
                 states.send(state)?;
             }
         }
@@ -464,7 +464,7 @@ fn simulator(
     let total = warmup + steps;
     let mut seq = 1;
     let mut sent = state(seq);
-    ports.send(sent, rt)?;
+    ports.send(sent)?;
     let mut answered = false;
     let mut next_due = std::time::Instant::now() + options.period.unwrap_or_default();
     let mut run = SimulatorRun {
@@ -504,7 +504,7 @@ fn simulator(
             if options.period.is_none() {
                 seq += 1;
                 sent = state(seq);
-                ports.send(sent, rt)?;
+                ports.send(sent)?;
                 answered = false;
             }
         }
@@ -528,14 +528,14 @@ fn simulator(
                         seq += 1;
                     }
                     sent = state(seq);
-                    ports.send(sent, rt)?;
+                    ports.send(sent)?;
                     answered = false;
                 }
             }
             None => {
                 if wake == Wake::Timer {
                     // Nobody answered for a while: the ring is still starting; say it again.
-                    ports.send(state(seq), rt)?;
+                    ports.send(state(seq))?;
                 }
             }
         }
