@@ -26,13 +26,10 @@ struct Args {
     /// How long to watch (seconds): rates are counted over this.
     #[arg(long, default_value_t = 2.0)]
     window_s: f64,
-    /// The services to report (default: the mesh's seven and its monitor).
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "camera,perception,sway-behaviour,yaw-behaviour,surge-controller,thruster-allocator,simulator,monitor"
-    )]
-    services: Vec<String>,
+    /// The services to report, comma-separated (default: the endpoint's: the simulation mesh's seven
+    /// and its monitor; on the vehicle its eight services and the flight recorder).
+    #[arg(long, value_delimiter = ',')]
+    services: Option<Vec<String>>,
     /// Print JSON instead of the table.
     #[arg(long)]
     json: bool,
@@ -66,12 +63,33 @@ impl<P: Payload + Stamped> Count<P> {
     }
 }
 
+/// The services a mesh of `endpoint` runs, as its mesh file names them (`config/sim-mesh.toml`,
+/// `config/vehicle.toml`; the vehicle twin stands in for hardware and is not one of them).
+fn endpoint_services(endpoint: topics::Endpoint) -> Vec<String> {
+    const LOOP: [&str; 6] = [
+        "camera",
+        "perception",
+        "sway-behaviour",
+        "yaw-behaviour",
+        "surge-controller",
+        "thruster-allocator",
+    ];
+    let rest: &[&str] = match endpoint {
+        topics::Endpoint::Sim => &["simulator", "monitor"],
+        topics::Endpoint::Vehicle => &["thruster-driver", "monitor", "recorder"],
+    };
+    LOOP.iter().chain(rest).map(|s| s.to_string()).collect()
+}
+
 fn main() -> ExitCode {
     let args = Args::parse();
     runtime::run("status", &args.common, |rt| {
         let endpoint = rt.endpoint();
-        let beats = args
+        let service_names = args
             .services
+            .clone()
+            .unwrap_or_else(|| endpoint_services(endpoint));
+        let beats = service_names
             .iter()
             .map(|name| {
                 messages::ports::open_heartbeat(rt.node(), endpoint, name)?
@@ -135,9 +153,8 @@ fn main() -> ExitCode {
         )?;
         let window_s = start.elapsed().as_secs_f64();
 
-        let nodes = node_states(rt.iox_config(), &args.services);
-        let services = args
-            .services
+        let nodes = node_states(rt.iox_config(), &service_names);
+        let services = service_names
             .iter()
             .zip(&last_beat)
             .zip(nodes)
@@ -223,4 +240,52 @@ fn node_states(iox: &iceoryx2::config::Config, names: &[String]) -> Vec<NodeStat
         CallbackProgression::Continue
     });
     states
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The names of the services a mesh file of the repository's `config/` runs.
+    fn mesh_file_services(file: &str) -> Vec<String> {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../config")
+            .join(file);
+        let text = std::fs::read_to_string(&path).unwrap();
+        let mesh: toml::Table = toml::from_str(&text).unwrap();
+        mesh["service"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| s["name"].as_str().unwrap().to_string())
+            .collect()
+    }
+
+    fn sorted(mut names: Vec<String>) -> Vec<String> {
+        names.sort();
+        names
+    }
+
+    /// Without `--services`, `status` reports what the endpoint's mesh file runs: the simulation
+    /// mesh's services but its optional recorder, the vehicle's but the twin standing in for its
+    /// hardware.
+    #[test]
+    fn the_default_services_are_those_of_the_endpoints_mesh_file() {
+        let sim = mesh_file_services("sim-mesh.toml")
+            .into_iter()
+            .filter(|n| n != "recorder")
+            .collect();
+        assert_eq!(
+            sorted(endpoint_services(topics::Endpoint::Sim)),
+            sorted(sim)
+        );
+        let vehicle = mesh_file_services("vehicle.toml")
+            .into_iter()
+            .filter(|n| n != "vehicle-twin")
+            .collect();
+        assert_eq!(
+            sorted(endpoint_services(topics::Endpoint::Vehicle)),
+            sorted(vehicle)
+        );
+    }
 }
