@@ -18,9 +18,21 @@ fn setup() -> Setup {
     .unwrap()
 }
 
+/// How far from the LQR limit NAC's late mean return lies in the README's Fig. 5 table (`trainer
+/// fig5`, the same runs as this test): yaw -6.66 against -6.33 (5.2%), sway -0.406 against -0.404
+/// (0.5%); each bound is that figure plus one percentage point. The runs are seeded, so on one
+/// machine the figures are exact; the point is for another machine's floating-point last bits (its
+/// libm), which through 100 episodes of learning can move a mean by a fraction of a percent.
+fn gap_bound(dof: Dof) -> f64 {
+    match dof {
+        Dof::Yaw => 0.052 + 0.01,
+        Dof::Sway => 0.005 + 0.01,
+    }
+}
+
 /// What step one must reach: after 100 episodes, over 100 independent runs, NAC's mean returns are
-/// within 10% of the LQR limit and above the baseline's, and the cable stays in view in late
-/// episodes.
+/// as close to the LQR limit as the README publishes (the paper's criterion, within 10%, with room
+/// to spare) and above the baseline's, and the cable stays in view in late episodes.
 #[test]
 fn nac_reaches_the_lqr_limit_within_100_episodes_and_beats_the_baseline() {
     let setup = setup();
@@ -41,17 +53,20 @@ fn nac_reaches_the_lqr_limit_within_100_episodes_and_beats_the_baseline() {
             n.first_within(lim, 0.1, 5)
         );
         assert!(
-            (n_late - lim).abs() <= 0.1 * lim.abs(),
-            "{dof}: NAC {n_late} not within 10% of the limit {lim}"
+            (n_late - lim).abs() <= gap_bound(dof) * lim.abs(),
+            "{dof}: NAC {n_late} not within {:.1}% of the limit {lim}",
+            100.0 * gap_bound(dof)
         );
         assert!(
             n_late > g_late,
             "{dof}: NAC {n_late} not above OLPOMDP {g_late}"
         );
     }
+    // The README: none of the 1,000 late episodes loses the cable; two are the margin for another
+    // machine's last bits.
     let lost = experiment::late_loss_fraction(&nac, late);
     assert!(
-        lost <= 0.01,
+        lost <= 2.0 / (runs * late) as f64,
         "NAC lost the cable in {:.1}% of late episodes",
         100.0 * lost
     );
