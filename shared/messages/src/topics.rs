@@ -12,12 +12,37 @@ pub enum Endpoint {
     Vehicle,
 }
 
+/// The services of the control path, camera to thruster allocator, as their processes, nodes and
+/// heartbeats are named: both endpoints run them.
+pub const CONTROL_PATH: [&str; 6] = [
+    "camera",
+    "perception",
+    "sway-behaviour",
+    "yaw-behaviour",
+    "surge-controller",
+    "thruster-allocator",
+];
+
 impl Endpoint {
     pub fn name(self) -> &'static str {
         match self {
             Endpoint::Sim => "sim",
             Endpoint::Vehicle => "vehicle",
         }
+    }
+
+    /// The services a mesh of this endpoint runs: the control path and, in simulation, the simulator
+    /// and the monitor; on the vehicle the thruster driver and the monitor. Beside them run observers
+    /// (the flight recorder) and, against the twin, the vehicle twin in the hardware's place.
+    pub const fn services(self) -> [&'static str; 8] {
+        let [camera, perception, sway, yaw, surge, allocator] = CONTROL_PATH;
+        let own = match self {
+            Endpoint::Sim => "simulator",
+            Endpoint::Vehicle => "thruster-driver",
+        };
+        [
+            camera, perception, sway, yaw, surge, allocator, own, "monitor",
+        ]
     }
 }
 
@@ -377,5 +402,38 @@ mod tests {
     #[test]
     fn only_one_process_drives_the_thrusters() {
         assert_eq!(THRUSTER_SETPOINTS.qos.max_publishers, 1);
+    }
+
+    /// The names of the services a mesh file of the repository's `config/` runs, sorted, but for
+    /// the observers (`observer = true`: the flight recorder) and the vehicle twin.
+    fn mesh_file_services(file: &str) -> Vec<String> {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../config")
+            .join(file);
+        let text = std::fs::read_to_string(&path).unwrap();
+        let mesh: toml::Table = toml::from_str(&text).unwrap();
+        let mut names: Vec<String> = mesh["service"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|s| s.get("observer").and_then(|o| o.as_bool()) != Some(true))
+            .map(|s| s["name"].as_str().unwrap().to_string())
+            .filter(|n| n != "vehicle-twin")
+            .collect();
+        names.sort();
+        names
+    }
+
+    #[test]
+    fn each_endpoints_services_are_those_its_mesh_file_runs() {
+        for (endpoint, file) in [
+            (Endpoint::Sim, "sim-mesh.toml"),
+            (Endpoint::Vehicle, "vehicle.toml"),
+        ] {
+            let mut services: Vec<String> =
+                endpoint.services().iter().map(|s| s.to_string()).collect();
+            services.sort();
+            assert_eq!(services, mesh_file_services(file), "{file}");
+        }
     }
 }

@@ -38,16 +38,7 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 /// The services the drill kills (every vehicle service; the twin is the plant, not the vehicle).
-pub const SERVICES: [&str; 8] = [
-    "camera",
-    "perception",
-    "sway-behaviour",
-    "yaw-behaviour",
-    "surge-controller",
-    "thruster-allocator",
-    "thruster-driver",
-    "monitor",
-];
+pub const SERVICES: [&str; 8] = messages::topics::Endpoint::Vehicle.services();
 /// The services stalled.
 pub const STALLED: [&str; 3] = ["perception", "sway-behaviour", "yaw-behaviour"];
 /// How long a stall lasts.

@@ -155,21 +155,19 @@ impl SchedRates {
     }
 }
 
-/// The order processes are listed in: the loop's.
-const ORDER: [&str; 12] = [
-    "simulator",
-    "vehicle-twin",
-    "camera",
-    "perception",
-    "sway-behaviour",
-    "yaw-behaviour",
-    "surge-controller",
-    "thruster-allocator",
-    "thruster-driver",
-    "monitor",
-    "recorder",
-    "supervisor",
-];
+/// Where a process is listed: the loop's order (the plant, the control path, the thruster driver),
+/// then the processes beside it; any other last.
+fn rank(name: &str) -> usize {
+    const PLANT: [&str; 2] = ["simulator", "vehicle-twin"];
+    const BESIDE: [&str; 4] = ["thruster-driver", "monitor", "recorder", "supervisor"];
+    let order = || {
+        PLANT
+            .iter()
+            .chain(&messages::topics::CONTROL_PATH)
+            .chain(&BESIDE)
+    };
+    order().position(|o| *o == name).unwrap_or(order().count())
+}
 
 /// Each process's use from the readings, with the steady window `(a, b)`.
 pub fn usage(ticks: &[Tick], (a, b): (usize, usize)) -> Vec<ProcessUse> {
@@ -206,7 +204,6 @@ pub fn usage(ticks: &[Tick], (a, b): (usize, usize)) -> Vec<ProcessUse> {
             })
         })
         .collect();
-    let rank = |n: &str| ORDER.iter().position(|o| *o == n).unwrap_or(ORDER.len());
     out.sort_by(|x, y| rank(&x.name).cmp(&rank(&y.name)).then(x.name.cmp(&y.name)));
     out
 }

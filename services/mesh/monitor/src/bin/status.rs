@@ -63,22 +63,19 @@ impl<P: Payload + Stamped> Count<P> {
     }
 }
 
-/// The services a mesh of `endpoint` runs, as its mesh file names them (`config/sim-mesh.toml`,
-/// `config/vehicle.toml`; the vehicle twin stands in for hardware and is not one of them).
+/// The services `status` reports unless told: the endpoint's, and on the vehicle its flight
+/// recorder (a vehicle always keeps a record).
 fn endpoint_services(endpoint: topics::Endpoint) -> Vec<String> {
-    const LOOP: [&str; 6] = [
-        "camera",
-        "perception",
-        "sway-behaviour",
-        "yaw-behaviour",
-        "surge-controller",
-        "thruster-allocator",
-    ];
-    let rest: &[&str] = match endpoint {
-        topics::Endpoint::Sim => &["simulator", "monitor"],
-        topics::Endpoint::Vehicle => &["thruster-driver", "monitor", "recorder"],
+    let observers: &[&str] = match endpoint {
+        topics::Endpoint::Sim => &[],
+        topics::Endpoint::Vehicle => &["recorder"],
     };
-    LOOP.iter().chain(rest).map(|s| s.to_string()).collect()
+    endpoint
+        .services()
+        .iter()
+        .chain(observers)
+        .map(|s| s.to_string())
+        .collect()
 }
 
 fn main() -> ExitCode {
@@ -240,52 +237,4 @@ fn node_states(iox: &iceoryx2::config::Config, names: &[String]) -> Vec<NodeStat
         CallbackProgression::Continue
     });
     states
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The names of the services a mesh file of the repository's `config/` runs.
-    fn mesh_file_services(file: &str) -> Vec<String> {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../../config")
-            .join(file);
-        let text = std::fs::read_to_string(&path).unwrap();
-        let mesh: toml::Table = toml::from_str(&text).unwrap();
-        mesh["service"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|s| s["name"].as_str().unwrap().to_string())
-            .collect()
-    }
-
-    fn sorted(mut names: Vec<String>) -> Vec<String> {
-        names.sort();
-        names
-    }
-
-    /// Without `--services`, `status` reports what the endpoint's mesh file runs: the simulation
-    /// mesh's services but its optional recorder, the vehicle's but the twin standing in for its
-    /// hardware.
-    #[test]
-    fn the_default_services_are_those_of_the_endpoints_mesh_file() {
-        let sim = mesh_file_services("sim-mesh.toml")
-            .into_iter()
-            .filter(|n| n != "recorder")
-            .collect();
-        assert_eq!(
-            sorted(endpoint_services(topics::Endpoint::Sim)),
-            sorted(sim)
-        );
-        let vehicle = mesh_file_services("vehicle.toml")
-            .into_iter()
-            .filter(|n| n != "vehicle-twin")
-            .collect();
-        assert_eq!(
-            sorted(endpoint_services(topics::Endpoint::Vehicle)),
-            sorted(vehicle)
-        );
-    }
 }
