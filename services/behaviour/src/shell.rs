@@ -65,8 +65,8 @@ pub fn name(dof: Dof) -> &'static str {
 pub fn main(dof: Dof) -> ExitCode {
     let name = name(dof);
     let command = Args::command().name(name).about(match dof {
-        Dof::Sway => "The sway behaviour: learns to keep the cable centred (x_g) with the Natural Actor-Critic.",
-        Dof::Yaw => "The yaw behaviour: learns to keep the cable aligned (Theta) with the Natural Actor-Critic.",
+        Dof::Sway => "The sway behaviour: learns to keep the cable centred (x_g) with the Natural Actor-Critic (or OLPOMDP, --algorithm gpomdp).",
+        Dof::Yaw => "The yaw behaviour: learns to keep the cable aligned (Theta) with the Natural Actor-Critic (or OLPOMDP, --algorithm gpomdp).",
     });
     let args = Args::from_arg_matches(&command.get_matches()).unwrap_or_else(|e| e.exit());
     runtime::run(name, &args.common, |rt| serve(rt, dof, &args))

@@ -18,7 +18,7 @@ pub struct CommonArgs {
     /// Which mesh to join: `sim` (the simulator drives) or `vehicle` (the camera's clock drives).
     #[arg(long, default_value = "sim")]
     pub endpoint: Endpoint,
-    /// Directory holding scenario.toml and learning.toml.
+    /// The configuration directory: scenario.toml, learning.toml (and the twin's twin.toml).
     #[arg(long, default_value = "config", env = "CABLETRACK_CONFIG")]
     pub config: PathBuf,
     /// The experiment's seed; each process draws from its own stream of it.

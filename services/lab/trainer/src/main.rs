@@ -21,7 +21,7 @@ use trainer::world::{EpisodeResult, World};
 #[derive(Parser)]
 #[command(
     version,
-    about = "Step one of two-step NAC learning for cable tracking: learn in simulation, in one process."
+    about = "Two-step NAC learning for cable tracking in one process: step one's experiments in simulation, the twin's limit, step two against the twin, the report."
 )]
 struct Cli {
     /// Directory holding scenario.toml and learning.toml.

@@ -30,7 +30,7 @@ struct Args {
     /// The twin's reality gap [default: CONFIG/twin.toml].
     #[arg(long, value_name = "FILE")]
     twin_config: Option<PathBuf>,
-    /// Run K times faster than real time (frames every 0.2/K s of wall time).
+    /// Run K times faster than real time (a frame every sample period / K of wall time: 0.2/K s).
     #[arg(long, default_value_t = 1.0, value_name = "K")]
     speed: f64,
     /// Lockstep with the mesh: publish a frame, wait for the setpoints answering it, integrate.
