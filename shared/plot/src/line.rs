@@ -318,10 +318,18 @@ pub(crate) fn draw<DB: DrawingBackend>(
                     let dot = Circle::new(part[0], theme.px(2.0), color.filled());
                     ctx.draw_series(std::iter::once(dot))?;
                 } else {
-                    ctx.draw_series(std::iter::once(PathElement::new(
-                        part,
-                        color.stroke_width(lw),
-                    )))?;
+                    // Segment by segment: plotters joins the segments of a thick polyline with
+                    // miters, which shoot far out of the chart where a dense series turns back
+                    // on itself within a pixel or two. A segment whose ends fall on the same
+                    // pixel draws nothing and is left out.
+                    let style = color.stroke_width(lw);
+                    let pixels: Vec<_> = part.iter().map(|p| ctx.backend_coord(p)).collect();
+                    let segments = part
+                        .windows(2)
+                        .zip(pixels.windows(2))
+                        .filter(|(_, px)| px[0] != px[1])
+                        .map(|(ends, _)| PathElement::new(ends.to_vec(), style));
+                    ctx.draw_series(segments)?;
                 }
             }
         }

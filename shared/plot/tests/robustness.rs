@@ -147,6 +147,43 @@ fn a_fixed_range_clips_what_falls_outside_it() {
     );
 }
 
+/// A series far denser than the pixels (a flight record's thousands of steps across one panel),
+/// turning back on itself within a pixel at every sample, stays inside its plotting area: a thick
+/// polyline's joins must not shoot out of it.
+#[test]
+fn a_dense_series_turning_back_at_every_sample_stays_inside_its_box() {
+    let n = 6000;
+    let chart = |y: Vec<f64>| {
+        let mut chart = LineChart::new("Dense", "t [s]", "command");
+        chart.series = vec![Series::new("", (0..n).map(|k| k as f64).collect(), y)];
+        chart.y_range = Some((-1.0, 1.0));
+        chart
+    };
+    let wobble: Vec<f64> = (0..n)
+        .map(|k| {
+            let size = ((k * 7919) % 1000) as f64 / 1000.0;
+            if k % 2 == 0 { size } else { -size }
+        })
+        .collect();
+    // The box is found on the same axes with a flat line (the dense curve covers its edges).
+    let flat = save(&small(vec![chart(vec![0.0; n]).into()]));
+    let (left, right, top, bottom) = plot_box(&flat, panel(0));
+    let image = save(&small(vec![chart(wobble).into()]));
+    let curve = pixels_of(&image, panel(0), PALETTE[0]);
+    assert!(curve.len() > 1000, "{} pixels of the curve", curve.len());
+    // A line at most 3 pixels wide may reach over the box's edge by its half-width.
+    let outside: Vec<_> = curve
+        .iter()
+        .filter(|&&(x, y)| x + 2 < left || x > right + 2 || y + 2 < top || y > bottom + 2)
+        .collect();
+    assert!(
+        outside.is_empty(),
+        "{} pixels outside {left}..{right} x {top}..{bottom}, e.g. {:?}",
+        outside.len(),
+        &outside[..outside.len().min(5)]
+    );
+}
+
 #[test]
 fn a_reversed_fixed_range_is_put_in_order_and_a_non_finite_one_is_zero_to_one() {
     // A horizontal line at a quarter of the range, with the range given upside down, and one at
