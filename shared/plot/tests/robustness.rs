@@ -62,6 +62,21 @@ fn inside(image: &Image, columns: (u32, u32), colour: [u8; 3]) -> Vec<(u32, u32)
     image.find((left + 1, right), (top + 1, bottom), |p| p == colour)
 }
 
+/// Every pixel of `curve` lies within the plotting area's box (left, right, top, bottom), but for
+/// what a line at most 3 pixels wide may reach over its edge: its half-width.
+fn assert_inside(curve: &[(u32, u32)], (left, right, top, bottom): (u32, u32, u32, u32)) {
+    let outside: Vec<_> = curve
+        .iter()
+        .filter(|&&(x, y)| x + 2 < left || x > right + 2 || y + 2 < top || y > bottom + 2)
+        .collect();
+    assert!(
+        outside.is_empty(),
+        "{} pixels outside {left}..{right} x {top}..{bottom}, e.g. {:?}",
+        outside.len(),
+        &outside[..outside.len().min(5)]
+    );
+}
+
 #[test]
 fn nans_infinities_and_ragged_series_draw_their_finite_points() {
     let nan = f64::NAN;
@@ -132,19 +147,9 @@ fn a_fixed_range_clips_what_falls_outside_it() {
     chart.ref_lines = vec![RefLine::new("outside", 7.0)];
     chart.y_range = Some((0.0, 1.0));
     let image = save(&small(vec![chart.into()]));
-    let (left, right, top, bottom) = plot_box(&image, panel(0));
     let curve = pixels_of(&image, panel(0), PALETTE[0]);
     assert!(curve.len() > 20, "{} pixels of the curve", curve.len());
-    // A line at most 3 pixels wide may reach over the box's edge by its half-width.
-    let outside: Vec<_> = curve
-        .iter()
-        .filter(|&&(x, y)| x + 2 < left || x > right + 2 || y + 2 < top || y > bottom + 2)
-        .collect();
-    assert_eq!(
-        outside,
-        Vec::<&(u32, u32)>::new(),
-        "outside {left}..{right} x {top}..{bottom}"
-    );
+    assert_inside(&curve, plot_box(&image, panel(0)));
 }
 
 /// A series far denser than the pixels (a flight record's thousands of steps across one panel),
@@ -167,21 +172,10 @@ fn a_dense_series_turning_back_at_every_sample_stays_inside_its_box() {
         .collect();
     // The box is found on the same axes with a flat line (the dense curve covers its edges).
     let flat = save(&small(vec![chart(vec![0.0; n]).into()]));
-    let (left, right, top, bottom) = plot_box(&flat, panel(0));
     let image = save(&small(vec![chart(wobble).into()]));
     let curve = pixels_of(&image, panel(0), PALETTE[0]);
     assert!(curve.len() > 1000, "{} pixels of the curve", curve.len());
-    // A line at most 3 pixels wide may reach over the box's edge by its half-width.
-    let outside: Vec<_> = curve
-        .iter()
-        .filter(|&&(x, y)| x + 2 < left || x > right + 2 || y + 2 < top || y > bottom + 2)
-        .collect();
-    assert!(
-        outside.is_empty(),
-        "{} pixels outside {left}..{right} x {top}..{bottom}, e.g. {:?}",
-        outside.len(),
-        &outside[..outside.len().min(5)]
-    );
+    assert_inside(&curve, plot_box(&flat, panel(0)));
 }
 
 #[test]
