@@ -22,6 +22,8 @@ pub struct TwinParams {
     pub latency: LatencyParams,
     /// The twin camera's image: its own effects, harsher than the simulator's `[render]`.
     pub render: RenderParams,
+    /// The stand-in ArduSub autopilot (used with `vehicle-twin --autopilot URL`).
+    pub autopilot: crate::AutopilotParams,
 }
 
 /// Trials, as on the real vehicle (paper section IV-B): a trial lasts `duration_s` of twin time or
@@ -221,6 +223,7 @@ impl Default for TwinParams {
             frames: FrameParams::default(),
             latency: LatencyParams::default(),
             render: TwinParams::default_render(),
+            autopilot: crate::AutopilotParams::default(),
         }
     }
 }
@@ -452,7 +455,8 @@ impl Validate for TwinParams {
             MAX_LATENCY_FRAMES as f64,
         )?;
 
-        self.render.validate(&join(key, "render"))
+        self.render.validate(&join(key, "render"))?;
+        self.autopilot.validate(&join(key, "autopilot"))
     }
 }
 
