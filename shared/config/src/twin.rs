@@ -581,6 +581,21 @@ mod tests {
         assert!(err.to_string().contains("render.noise.std_dn"), "{err}");
     }
 
+    /// The BlueROV2's files load: its twin carries the autopilot, without the twin's own quadratic
+    /// damping (the identified model has it), and its scenario the four vectored thrusters.
+    #[test]
+    fn the_bluerov2_files_load() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/bluerov2");
+        let t: TwinParams = crate::load(&dir.join("twin.toml")).unwrap();
+        let s: crate::Scenario = crate::load(&dir.join("scenario.toml")).unwrap();
+        let _: crate::LearningParams = crate::load(&dir.join("learning.toml")).unwrap();
+        assert!(!t.damping.enabled);
+        assert_eq!(t.autopilot.value("MAV_GCS_SYSID"), Some(255.0));
+        assert_eq!(t.autopilot.value("FS_PILOT_TIMEOUT"), Some(3.0));
+        assert_eq!(s.thrusters.thruster.len(), 4);
+        assert!(s.model.yaw.beta > 0.0 && s.model.sway.beta > 0.0);
+    }
+
     #[test]
     fn missing_keys_take_their_defaults() {
         let t: TwinParams =

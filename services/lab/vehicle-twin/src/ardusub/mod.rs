@@ -972,5 +972,34 @@ impl ArduSub {
     }
 }
 
+/// Where the autopilot's MAVLink port is, in the `mavlink` crate's URL syntax.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Url {
+    /// `udpin:HOST:PORT`: listen there, answer whoever sends (BlueOS's ground-station endpoint is
+    /// UDP 14550).
+    UdpIn(std::net::SocketAddr),
+    /// `udpout:HOST:PORT`: send there (and answer whoever sends) from an ephemeral port.
+    UdpOut(std::net::SocketAddr),
+}
+
+impl std::str::FromStr for Url {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Url, String> {
+        let (scheme, addr) = s
+            .split_once(':')
+            .ok_or_else(|| format!("`{s}`: expected udpin:HOST:PORT or udpout:HOST:PORT"))?;
+        let addr: std::net::SocketAddr = addr
+            .parse()
+            .map_err(|e| format!("`{s}`: `{addr}` is not HOST:PORT ({e})"))?;
+        match scheme {
+            "udpin" => Ok(Url::UdpIn(addr)),
+            "udpout" => Ok(Url::UdpOut(addr)),
+            other => Err(format!(
+                "`{s}`: `{other}` is not supported (udpin or udpout)"
+            )),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests;

@@ -679,3 +679,23 @@ fn a_cut_link_carries_nothing_and_a_restart_comes_back_disarmed_in_manual() {
     assert!("cut:1:2".parse::<Fault>().is_err());
     assert!("link-cut:x:2".parse::<Fault>().is_err());
 }
+
+#[test]
+fn urls_in_the_mavlink_crates_syntax() {
+    assert_eq!(
+        "udpin:0.0.0.0:14550".parse::<Url>(),
+        Ok(Url::UdpIn("0.0.0.0:14550".parse().unwrap()))
+    );
+    assert_eq!(
+        "udpout:127.0.0.1:14551".parse::<Url>(),
+        Ok(Url::UdpOut("127.0.0.1:14551".parse().unwrap()))
+    );
+    for bad in [
+        "tcpin:0.0.0.0:5760",
+        "udpin:14550",
+        "udpin",
+        "serial:/dev/ttyACM0:115200",
+    ] {
+        assert!(bad.parse::<Url>().is_err(), "{bad}");
+    }
+}
