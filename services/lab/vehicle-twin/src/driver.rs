@@ -351,7 +351,7 @@ mod tests {
         Twin::new(&Scenario::default(), &t, seed, false).unwrap()
     }
 
-    fn published(r: Reaction<Twin>) -> Shot {
+    fn published<P: Plant<Step = Shot>>(r: Reaction<P>) -> Shot {
         match r {
             Reaction::Publish { next, .. } => next,
             other => panic!("expected a frame, got {other:?}"),
@@ -474,6 +474,52 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    fn bluerov2() -> Scenario {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../config/bluerov2/scenario.toml");
+        config::load(&path).unwrap()
+    }
+
+    /// Lockstep behind the autopilot: a frame is answered by the tag carrying its time in ms; the
+    /// period is driven by the autopilot's motors (forward stick: the vehicle moves forward; the
+    /// same twin disarmed stays still); a scenario without the vectored layout is refused.
+    #[test]
+    fn lockstep_behind_the_autopilot_steps_on_the_frames_tag() {
+        use crate::ardusub::{ArduSub, StepTag};
+        let t0 = Instant::now();
+        let mut params = TwinParams::ideal();
+        params.trials.duration_s = 20.0;
+        let run = |arm: bool| {
+            let twin = Twin::new(&bluerov2(), &params, 5, false).unwrap();
+            let mut autopilot = ArduSub::new(&params.autopilot, Vec::new(), t0);
+            if arm {
+                autopilot.arm_for_test(t0, 1000);
+            }
+            let piloted = Piloted::new(twin, autopilot).unwrap();
+            let (mut ls, first) = Lockstep::start(piloted, Limits::new(100 * MS, 2000 * MS), 0, t0);
+            let mut shot = published(first);
+            for _ in 0..10 {
+                let tag = StepTag {
+                    frame_time_ms: (shot.time_ns() / 1_000_000) as u32,
+                    step: shot.step as i32,
+                };
+                assert!(Piloted::tags(&shot, &tag));
+                let other = StepTag {
+                    frame_time_ms: tag.frame_time_ms + 200,
+                    ..tag
+                };
+                assert!(!Piloted::tags(&shot, &other), "another frame's tag");
+                shot = published(ls.on_answer(shot.time_ns(), &[], t0));
+            }
+            shot.state.velocity.u
+        };
+        let (moving, still) = (run(true), run(false));
+        assert!(moving > 0.1, "forward at {moving} m/s");
+        assert_eq!(still, 0.0);
+        let default = Twin::new(&Scenario::default(), &params, 5, false).unwrap();
+        assert!(Piloted::new(default, ArduSub::new(&params.autopilot, Vec::new(), t0)).is_err());
     }
 
     #[test]

@@ -935,6 +935,16 @@ impl ArduSub {
         self.thrust().map(mixer::pwm)
     }
 
+    /// Arms and holds forward stick `x` as a ground station would (for tests of what drives the
+    /// twin).
+    #[doc(hidden)]
+    pub fn arm_for_test(&mut self, now: Instant, x: i16) {
+        self.arm();
+        self.sticks = Sticks::from_joystick(x, 0, 500, 0, self.gain, self.param("JS_THR_GAIN"));
+        self.last_pilot_input = now;
+        self.out.clear();
+    }
+
     /// What the autopilot's sensors say of the vehicle (for telemetry and the heading hold).
     pub fn observe(&mut self, vehicle: Vehicle) {
         self.vehicle = vehicle;
