@@ -10,7 +10,7 @@ use messages::{
     CableObservationData, CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats,
     ServiceEvent, Stamp, StepStatus, SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
 };
-use recorder::{CommandDof, FlightRecorder, Options};
+use recorder::{CommandDof, FlightRecorder, Options, Recorded};
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -142,18 +142,18 @@ pub fn write(path: &Path) {
     .unwrap();
     for k in 0..STEPS {
         let s = step(k);
-        rec.state(&s.state);
+        rec.log(&Recorded::State(s.state));
         rec.frame(&s.header, &s.image);
-        rec.observation(&s.observation);
-        for (dof, c) in CommandDof::ALL.into_iter().zip(&s.commands) {
-            rec.command(dof, c);
+        rec.log(&Recorded::Observation(s.observation));
+        for (dof, c) in CommandDof::ALL.into_iter().zip(s.commands) {
+            rec.log(&Recorded::Command(dof, c));
         }
-        rec.setpoints(&s.setpoints);
+        rec.log(&Recorded::Setpoints(s.setpoints));
     }
     for dof in config::Dof::ALL {
-        rec.learning(dof, &learning(dof));
+        rec.log(&Recorded::Learning(dof, learning(dof)));
     }
-    rec.event(&event());
+    rec.log(&Recorded::Event(event()));
     rec.status();
     rec.close().unwrap();
 }
