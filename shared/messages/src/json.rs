@@ -66,6 +66,25 @@ pub fn schema_name<T: ZeroCopySend>() -> String {
     name.replace("::", ".")
 }
 
+/// A helper's schema, inline where it is used (it is a field's form, not a type of its own).
+macro_rules! inline_schema {
+    ($t:ident, |$g:tt| $schema:block) => {
+        impl JsonSchema for $t {
+            fn schema_name() -> Cow<'static, str> {
+                stringify!($t).into()
+            }
+
+            fn inline_schema() -> bool {
+                true
+            }
+
+            fn json_schema($g: &mut SchemaGenerator) -> Schema {
+                $schema
+            }
+        }
+    };
+}
+
 fn number_or_null() -> Schema {
     json_schema!({"type": ["number", "null"]})
 }
@@ -88,19 +107,7 @@ impl NumberOrNull {
     }
 }
 
-impl JsonSchema for NumberOrNull {
-    fn schema_name() -> Cow<'static, str> {
-        "NumberOrNull".into()
-    }
-
-    fn inline_schema() -> bool {
-        true
-    }
-
-    fn json_schema(_: &mut SchemaGenerator) -> Schema {
-        number_or_null()
-    }
-}
+inline_schema!(NumberOrNull, |_| { number_or_null() });
 
 /// An `[f64; N]` whose numbers may be non-finite, each as [`NumberOrNull`].
 pub struct NumbersOrNull<const N: usize>;
@@ -157,19 +164,7 @@ impl Flag {
     }
 }
 
-impl JsonSchema for Flag {
-    fn schema_name() -> Cow<'static, str> {
-        "Flag".into()
-    }
-
-    fn inline_schema() -> bool {
-        true
-    }
-
-    fn json_schema(g: &mut SchemaGenerator) -> Schema {
-        bool::json_schema(g)
-    }
-}
+inline_schema!(Flag, |g| { bool::json_schema(g) });
 
 /// A fixed, NUL-padded UTF-8 name of at most `N` bytes, as a string (invalid UTF-8 is replaced);
 /// read back cut at a character boundary to fit.
@@ -239,59 +234,27 @@ impl EventKind {
     }
 }
 
-impl JsonSchema for EventKind {
-    fn schema_name() -> Cow<'static, str> {
-        "EventKind".into()
-    }
-
-    fn inline_schema() -> bool {
-        true
-    }
-
-    fn json_schema(_: &mut SchemaGenerator) -> Schema {
-        json_schema!({"type": "string"})
-    }
-}
+inline_schema!(EventKind, |_| { json_schema!({"type": "string"}) });
 
 /// The schema of a [`StepStatus`] carried as `u8`: its values.
 pub enum StepStatusCode {}
 
-impl JsonSchema for StepStatusCode {
-    fn schema_name() -> Cow<'static, str> {
-        "StepStatusCode".into()
-    }
-
-    fn inline_schema() -> bool {
-        true
-    }
-
-    fn json_schema(_: &mut SchemaGenerator) -> Schema {
-        let values: Vec<u8> = (0..=u8::MAX)
-            .filter(|&v| StepStatus::from_u8(v).is_some())
-            .collect();
-        json_schema!({"type": "integer", "enum": values})
-    }
-}
+inline_schema!(StepStatusCode, |_| {
+    let values: Vec<u8> = (0..=u8::MAX)
+        .filter(|&v| StepStatus::from_u8(v).is_some())
+        .collect();
+    json_schema!({"type": "integer", "enum": values})
+});
 
 /// The schema of a failsafe stop's cause carried as `u32`: 0 (none) or a [`StopCause`]'s value.
 pub enum StopCauseCode {}
 
-impl JsonSchema for StopCauseCode {
-    fn schema_name() -> Cow<'static, str> {
-        "StopCauseCode".into()
-    }
-
-    fn inline_schema() -> bool {
-        true
-    }
-
-    fn json_schema(_: &mut SchemaGenerator) -> Schema {
-        let values: Vec<u32> = std::iter::once(0)
-            .chain(StopCause::ALL.map(|c| c as u32))
-            .collect();
-        json_schema!({"type": "integer", "enum": values})
-    }
-}
+inline_schema!(StopCauseCode, |_| {
+    let values: Vec<u32> = std::iter::once(0)
+        .chain(StopCause::ALL.map(|c| c as u32))
+        .collect();
+    json_schema!({"type": "integer", "enum": values})
+});
 
 #[cfg(test)]
 mod tests {
@@ -411,17 +374,13 @@ mod tests {
             evaluated: -9.25,
             best_evaluated: -8.5,
         });
-        let mut event = SupervisorEvent::new(
-            4,
-            1_763_781_234_567_890_123,
-            ServiceEvent::Stopped,
-            "camera",
-        );
-        event.pid = 4242;
-        event.status = -9;
-        event.restarts = 2;
-        event.detail = 1;
-        let text = round_trip(&event);
+        let text = round_trip(&SupervisorEvent {
+            pid: 4242,
+            status: -9,
+            restarts: 2,
+            detail: 1,
+            ..SupervisorEvent::new(7, 1 << 62, ServiceEvent::Stopped, "camera")
+        });
         assert!(text.contains(r#""kind":"stopped""#) && text.contains(r#""service":"camera""#));
         round_trip(&RecorderStatus {
             seq: 2,

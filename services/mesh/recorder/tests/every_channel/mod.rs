@@ -120,17 +120,18 @@ pub fn learning(dof: config::Dof) -> LearningStats {
 }
 
 pub fn event() -> SupervisorEvent {
-    let mut e = SupervisorEvent::new(
-        4,
-        1_763_781_234_567_890_123,
-        ServiceEvent::Stopped,
-        "sway-behaviour",
-    );
-    e.pid = 4242;
-    e.status = -9;
-    e.restarts = 2;
-    e.detail = 1;
-    e
+    SupervisorEvent {
+        pid: 4242,
+        status: -9,
+        restarts: 2,
+        detail: 1,
+        ..SupervisorEvent::new(
+            4,
+            1_763_781_234_567_890_123,
+            ServiceEvent::Stopped,
+            "sway-behaviour",
+        )
+    }
 }
 
 /// Writes the synthetic record at `path`: every channel, the image of every step.
