@@ -12,6 +12,7 @@ use adapters::twin::{TwinCameraPort, TwinThrusterPort};
 use anyhow::Context;
 use clap::Parser;
 use config::TwinParams;
+use records::latency;
 use runtime::lockstep::{Cause, Limits, Lockstep, Reaction};
 use runtime::{CommonArgs, Flow, Timer};
 use std::io::Write;
@@ -20,7 +21,7 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 use vehicle_twin::Twin;
 use vehicle_twin::driver::{RealTime, Tick};
-use vehicle_twin::latency::{self, LatencyMeter};
+use vehicle_twin::latency::LatencyMeter;
 use vehicle_twin::twin::{Shot, TrialEnd};
 
 #[derive(Parser)]
