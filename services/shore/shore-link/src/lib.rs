@@ -346,11 +346,12 @@ pub fn back_after(shore: &[Arrival], link_up_ns: u64) -> Option<f64> {
 }
 
 /// Steps the vehicle missed while the shore watched (from the first to the last observation the shore
-/// received): frames that reached the vehicle but were answered by no setpoints, and setpoints that
-/// lacked a command. `frames` are the frames' step numbers; `steps` the vehicle's setpoints, as (seq,
-/// commands missing). A frame lost before the vehicle (the twin drops some, as a real link does) is
-/// no step of the vehicle's. Start-up and the stop are outside the window: the link is not running
-/// then.
+/// received) and its loop ran (from its first complete step on): frames that reached the vehicle but
+/// were answered by no setpoints, and setpoints that lacked a command. `frames` are the frames' step
+/// numbers; `steps` the vehicle's setpoints, as (seq, commands missing). A frame lost before the
+/// vehicle (the twin drops some, as a real link does) is no step of the vehicle's. The mesh's
+/// start-up (its first frames answered before every behaviour has joined, or not at all) and its
+/// stop are outside the window: the link may already be up at start-up, but the loop is not.
 pub fn steps_missed(frames: &[u64], steps: &[(u64, u64)], shore: &[Arrival]) -> u64 {
     let (Some(first), Some(last)) = (
         shore.iter().map(|a| a.seq).min(),
@@ -358,7 +359,19 @@ pub fn steps_missed(frames: &[u64], steps: &[(u64, u64)], shore: &[Arrival]) -> 
     ) else {
         return 0;
     };
-    let window = first..=last;
+    let Some(running) = steps
+        .iter()
+        .filter(|&&(_, missing)| missing == 0)
+        .map(|&(seq, _)| seq)
+        .min()
+    else {
+        // The loop never answered a step completely while the shore watched: all of it missed.
+        return frames
+            .iter()
+            .filter(|seq| (first..=last).contains(*seq))
+            .count() as u64;
+    };
+    let window = first.max(running)..=last;
     let answered: std::collections::BTreeSet<u64> = steps.iter().map(|&(seq, _)| seq).collect();
     let unanswered = frames
         .iter()
@@ -412,6 +425,13 @@ mod tests {
         assert_eq!(steps_missed(&frames, &steps, &[]), 0);
         // The same steps with no frame lost or unanswered: only step 11 is missed.
         assert_eq!(steps_missed(&[10, 11, 14, 15], &steps, &shore), 1);
+        // The shore watched from the mesh's start: steps 1 and 2 before its loop ran (2 unanswered,
+        // 1 incomplete) are start-up, not misses; 4 unanswered and 5 incomplete after it are.
+        let from_start = [1, 5].map(|seq| Arrival { seq, at_ns: 0 });
+        let start_steps = [(1, 2), (3, 0), (5, 1)];
+        assert_eq!(steps_missed(&[1, 2, 3, 4, 5], &start_steps, &from_start), 2);
+        // A loop that never answered completely missed every frame of the watch.
+        assert_eq!(steps_missed(&[1, 2, 3], &[(1, 1)], &from_start), 3);
     }
 
     #[test]
