@@ -176,9 +176,28 @@ fn under(setting: &str) {
     let args = shore_link::impair::netem_args(setting);
     assert_eq!(r.netem.as_deref(), Some(args), "{r:?}");
     assert_the_links_properties(&r);
-    // The impairment ran: tc's netem, or the emulator, which tells what it did to the packets.
+    // The impairment ran: tc's netem, or the emulator, which tells what it did to each direction's
+    // packets (`offered=N lost=N ... reordered=N sent=N`).
     if let Ok(text) = std::fs::read_to_string(logs.path().join("logs/impair.log")) {
-        assert!(text.contains("impairment done"), "{text}");
+        let done: Vec<&str> = text
+            .lines()
+            .filter(|l| l.contains("impairment done"))
+            .collect();
+        assert_eq!(done.len(), 2, "{text}");
+        let count = |line: &str, key: &str| -> u64 {
+            line.split_whitespace()
+                .find_map(|w| w.strip_prefix(&format!("{key}=")))
+                .and_then(|n| n.parse().ok())
+                .unwrap_or_else(|| panic!("no {key} in {line}"))
+        };
+        for line in done {
+            assert!(count(line, "sent") > 0, "{line}");
+            match setting {
+                "loss" => assert!(count(line, "lost") > 0, "{line}"),
+                "reorder" => assert!(count(line, "reordered") > 0, "{line}"),
+                _ => {}
+            }
+        }
     }
     println!(
         "under \"{args}\": {} of {} shown ({:.1}%), latency p50 / p99 {:.1} / {:.1} ms, {} stale arrivals refused, steps missed {}, stop obeyed {}",
