@@ -157,6 +157,14 @@ impl Link {
         Ok(sent)
     }
 
+    /// The address this end sends from.
+    pub fn local_address(&self) -> Option<SocketAddr> {
+        match &self.socket {
+            Socket::Udp { socket, .. } => socket.local_addr().ok(),
+            Socket::Tcp(stream) => lock(stream).as_ref().and_then(|s| s.local_addr().ok()),
+        }
+    }
+
     /// Frames handed to the socket so far.
     pub fn sent(&self) -> u64 {
         self.sent

@@ -126,6 +126,7 @@ impl ArduSubSink {
         )?;
         tracing::info!(
             url = %url,
+            local = ?link.local_address(),
             system = spec.options.system,
             component = spec.options.component,
             rate_hz = spec.options.rate_hz,
@@ -159,6 +160,11 @@ impl ArduSubSink {
     /// The companion, to look at (tests, logs).
     pub fn companion(&self) -> &Companion {
         &self.companion
+    }
+
+    /// The address the sink sends from (the port ArduSub answers to).
+    pub fn local_address(&self) -> Option<std::net::SocketAddr> {
+        self.link.local_address()
     }
 
     /// Frames sent so far.
