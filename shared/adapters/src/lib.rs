@@ -237,6 +237,13 @@ pub trait ThrusterSink {
     /// Stops the thrusters ([`StopCause::Shutdown`]) unless the last thing sent was a stop, flushes
     /// and releases the device; later writes are refused.
     fn close(&mut self) -> Result<(), AdapterError>;
+    /// Periodic work of a device that needs some between writes (a link's own heartbeat, a command
+    /// repeated at a fixed rate, replies to read): done now, at `now`; returns when to be serviced
+    /// next (`None`: only when written to). Called from the thread that writes, so a writer that
+    /// hangs stops the device's traffic too. Nothing by default.
+    fn service(&mut self, _now: Instant) -> Result<Option<Instant>, AdapterError> {
+        Ok(None)
+    }
 }
 
 /// A sink chosen at run time (`Box<dyn ThrusterSink>`) is a sink.
@@ -258,6 +265,9 @@ impl<S: ThrusterSink + ?Sized> ThrusterSink for Box<S> {
     }
     fn close(&mut self) -> Result<(), AdapterError> {
         (**self).close()
+    }
+    fn service(&mut self, now: Instant) -> Result<Option<Instant>, AdapterError> {
+        (**self).service(now)
     }
 }
 
@@ -336,6 +346,14 @@ pub enum AdapterError {
     },
     #[error("{adapter}: closed")]
     Closed { adapter: String },
+    /// A device's own failure (a link that broke, a controller that refused a command), with its
+    /// typed error.
+    #[error("{adapter}: {source}")]
+    Device {
+        adapter: String,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
 }
 
 #[cfg(test)]
