@@ -193,6 +193,7 @@ mod tests {
                 x_g: 0.1,
                 ..Default::default()
             }),
+            damaged: false,
         }
     }
 

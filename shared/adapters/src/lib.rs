@@ -50,6 +50,10 @@ pub struct FrameMeta {
     /// The cable's true line in this frame, where the source knows it (the twin does; a dive when it
     /// was recorded from the twin); `None` otherwise.
     pub truth: Option<CableObservationData>,
+    /// The image is not whole: a compressed video frame decoded with data missing (a lost packet in
+    /// it, or in a frame it references since the last keyframe) or with a decoder error. The rest of
+    /// the metadata is sound; the image must not be trusted (perception does not track on it).
+    pub damaged: bool,
 }
 
 impl Default for FrameMeta {
@@ -63,6 +67,7 @@ impl Default for FrameMeta {
             step: 0,
             status: StepStatus::Running,
             truth: None,
+            damaged: false,
         }
     }
 }

@@ -209,6 +209,7 @@ fn accept(
         step: h.stamp.step,
         status,
         truth: Some(h.truth),
+        damaged: false,
     };
     out.image.clear();
     out.image.extend_from_slice(data);
