@@ -19,6 +19,7 @@
 
 use adapters::{FrameMeta, FrameSource, Read};
 use messages::{CameraFrameHeader, Stamp};
+use std::net::SocketAddr;
 use std::path::PathBuf;
 
 /// Which frame source the vehicle's camera reads.
@@ -28,20 +29,30 @@ pub enum SourceSpec {
     Twin,
     /// A recorded dive in this directory (`adapters::replay`).
     Replay(PathBuf),
+    /// An RTP/H.264 stream received on this address (a BlueROV2's camera as BlueOS sends it, or
+    /// the twin's with `--video`): `video::source`, built with the `video` feature.
+    Rtp(SocketAddr),
 }
 
 impl std::str::FromStr for SourceSpec {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "twin" => Ok(SourceSpec::Twin),
-            _ => match s.strip_prefix("replay:") {
-                Some(dir) if !dir.is_empty() => Ok(SourceSpec::Replay(PathBuf::from(dir))),
-                _ => Err(format!(
-                    "unknown frame source `{s}` (expected `twin` or `replay:DIR`)"
-                )),
-            },
+        if s == "twin" {
+            return Ok(SourceSpec::Twin);
         }
+        if let Some(dir) = s.strip_prefix("replay:")
+            && !dir.is_empty()
+        {
+            return Ok(SourceSpec::Replay(PathBuf::from(dir)));
+        }
+        if let Some(addr) = s.strip_prefix("rtp:") {
+            return addr.parse().map(SourceSpec::Rtp).map_err(|e| {
+                format!("frame source `{s}`: `{addr}` is not an ADDR:PORT to listen on ({e})")
+            });
+        }
+        Err(format!(
+            "unknown frame source `{s}` (expected `twin`, `replay:DIR` or `rtp:ADDR:PORT`)"
+        ))
     }
 }
 
@@ -206,6 +217,23 @@ mod tests {
         );
         assert!("replay:".parse::<SourceSpec>().is_err());
         assert!("usb0".parse::<SourceSpec>().is_err());
+        assert_eq!(
+            "rtp:0.0.0.0:5600".parse(),
+            Ok(SourceSpec::Rtp("0.0.0.0:5600".parse().unwrap()))
+        );
+        assert_eq!(
+            "rtp:[::1]:5602".parse(),
+            Ok(SourceSpec::Rtp("[::1]:5602".parse().unwrap()))
+        );
+        for bad in [
+            "rtp:",
+            "rtp:5600",
+            "rtp:localhost:5600",
+            "rtp:1.2.3.4:99999",
+        ] {
+            let e = bad.parse::<SourceSpec>().unwrap_err();
+            assert!(e.contains(bad), "{e}");
+        }
     }
 
     /// The source's gaps stay gaps; a device restart does not make `seq` go back.

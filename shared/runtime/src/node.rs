@@ -286,6 +286,19 @@ impl Runtime {
         timer: Timer,
         on_wake: impl FnMut(Wake) -> anyhow::Result<crate::Flow>,
     ) -> anyhow::Result<Stopped> {
+        let inputs: Vec<crate::Input<'_>> =
+            inputs.iter().map(|l| crate::Input::Listener(l)).collect();
+        crate::wait::serve(&inputs, timer, &self.heartbeat, on_wake)
+    }
+
+    /// [`Runtime::serve`] on inputs that may be file descriptors too (a device's eventfd beside
+    /// the listeners: see [`crate::Input`]).
+    pub fn serve_inputs(
+        &self,
+        inputs: &[crate::Input<'_>],
+        timer: Timer,
+        on_wake: impl FnMut(Wake) -> anyhow::Result<crate::Flow>,
+    ) -> anyhow::Result<Stopped> {
         crate::wait::serve(inputs, timer, &self.heartbeat, on_wake)
     }
 

@@ -23,3 +23,10 @@ pub mod h264;
 pub mod meta;
 pub mod rtp;
 pub mod stream;
+
+#[cfg(feature = "gstreamer")]
+pub mod gst;
+#[cfg(feature = "gstreamer")]
+pub mod sender;
+#[cfg(feature = "gstreamer")]
+pub mod source;

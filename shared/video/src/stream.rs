@@ -265,6 +265,14 @@ impl Receiver {
         }
     }
 
+    /// What was received so far can no longer be relied on (the decoder started again): every
+    /// unit is damaged until the next intact keyframe.
+    pub fn damage(&mut self) {
+        if let Some(s) = self.session.as_mut() {
+            s.chain = false;
+        }
+    }
+
     /// Ends the unit in progress, if any, as incomplete (the stream stopped or changed).
     pub fn flush(&mut self, events: &mut Vec<Event>) {
         if let Some(s) = self.session.as_mut()
