@@ -171,6 +171,8 @@ pub struct RtpSender {
     rtp_base: u32,
     frames: u64,
     packet: Vec<u8>,
+    /// The last access unit encoded.
+    access_unit: Vec<u8>,
     stats: SenderStats,
 }
 
@@ -208,6 +210,7 @@ impl RtpSender {
             rtp_base,
             frames: 0,
             packet: Vec::with_capacity(1500),
+            access_unit: Vec::new(),
             stats: SenderStats::default(),
         })
     }
@@ -222,6 +225,11 @@ impl RtpSender {
 
     pub fn config(&self) -> &SenderConfig {
         &self.config
+    }
+
+    /// The H.264 bytes of the last frame sent (Annex B), as the encoder gave them.
+    pub fn last_access_unit(&self) -> &[u8] {
+        &self.access_unit
     }
 
     /// Encodes and sends one grey frame of the input size. With `meta` the frame carries it (the
@@ -284,6 +292,7 @@ impl RtpSender {
                     source,
                 })?;
         }
+        self.access_unit = au;
         self.frames += 1;
         self.stats.frames += 1;
         self.stats.keyframes += sent.keyframe as u64;

@@ -104,6 +104,8 @@ pub struct SourceStats {
     pub picture_changes: u64,
     /// Times the decoding pipeline was started again after an error.
     pub pipeline_restarts: u64,
+    /// Times the stream went quiet for [`SourceConfig::quiet`] after packets had come.
+    pub quiet: u64,
 }
 
 /// What the receive thread knows of a unit sent to the decoder.
@@ -687,6 +689,7 @@ fn receive(
         }
         if n == 0 {
             active = false;
+            shared.lock().stats.quiet += 1;
             // The unit in progress will not be completed.
             receiver.flush(&mut events);
             tracing::warn!(
