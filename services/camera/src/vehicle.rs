@@ -96,8 +96,15 @@ pub fn header(meta: &FrameMeta, seq: u64, epoch: u32, clock_ns: u64) -> CameraFr
             .timed(epoch, clock_ns),
         width: meta.width,
         height: meta.height,
+        // A damaged image (lost video data) is marked: perception does not track on it.
+        flags: if meta.damaged {
+            CameraFrameHeader::DAMAGED
+        } else {
+            0
+        },
         // The truth is passed on where the source knows it (ideal perception can use it).
         truth: meta.truth.unwrap_or_default(),
+        ..Default::default()
     }
 }
 
@@ -273,6 +280,9 @@ mod tests {
         assert_eq!(cam.on_read(Read::End, &m, 9_700), Publish::End);
         let unknown = FrameMeta { truth: None, ..m };
         assert_eq!(header(&unknown, 1, 42, 1).truth.found, 0);
+        assert!(!h.is_damaged());
+        let damaged = FrameMeta { damaged: true, ..m };
+        assert!(header(&damaged, 1, 42, 1).is_damaged());
         assert_eq!(cam.published(), 1);
     }
 }

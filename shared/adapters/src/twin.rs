@@ -33,7 +33,13 @@ pub fn header(meta: &FrameMeta) -> CameraFrameHeader {
         stamp: Stamp::new(meta.seq, meta.time_ns, meta.trial, meta.step, meta.status),
         width: meta.width,
         height: meta.height,
+        flags: if meta.damaged {
+            CameraFrameHeader::DAMAGED
+        } else {
+            0
+        },
         truth: meta.truth.unwrap_or_default(),
+        ..Default::default()
     }
 }
 

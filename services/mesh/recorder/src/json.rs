@@ -239,6 +239,9 @@ pub struct FrameHeaderJson {
     pub stamp: StampJson,
     pub width: u32,
     pub height: u32,
+    /// The image is not whole (lost video data); absent in records made before it existed.
+    #[serde(default)]
+    pub damaged: bool,
     pub truth: ObservationJson,
 }
 
@@ -248,6 +251,7 @@ impl From<&CameraFrameHeader> for FrameHeaderJson {
             stamp: (&h.stamp).into(),
             width: h.width,
             height: h.height,
+            damaged: h.is_damaged(),
             truth: (&h.truth).into(),
         }
     }
@@ -259,7 +263,13 @@ impl From<&FrameHeaderJson> for CameraFrameHeader {
             stamp: (&j.stamp).into(),
             width: j.width,
             height: j.height,
+            flags: if j.damaged {
+                CameraFrameHeader::DAMAGED
+            } else {
+                0
+            },
             truth: (&j.truth).into(),
+            ..Default::default()
         }
     }
 }
@@ -272,6 +282,7 @@ pub fn frame_header_schema() -> Value {
             "stamp": stamp_schema(),
             "width": int_schema("pixels"),
             "height": int_schema("pixels"),
+            "damaged": {"type": "boolean", "description": "the image is not whole: video data was lost in it or in a frame it references"},
             "truth": observation_schema(),
         })),
     )
@@ -738,6 +749,18 @@ mod tests {
                 width: 320,
                 height: 240,
                 truth: obs(),
+                ..Default::default()
+            },
+            &frame_header_schema(),
+        );
+        round_trip::<_, FrameHeaderJson>(
+            &CameraFrameHeader {
+                stamp,
+                width: 320,
+                height: 240,
+                flags: CameraFrameHeader::DAMAGED,
+                truth: obs(),
+                ..Default::default()
             },
             &frame_header_schema(),
         );
