@@ -215,7 +215,7 @@ fn accept(
         step: h.stamp.step,
         status,
         truth: Some(h.truth),
-        damaged: false,
+        damaged: h.is_damaged(),
     };
     out.image.clear();
     out.image.extend_from_slice(data);
