@@ -160,6 +160,7 @@ fn frame(
             confidence: if status != StepStatus::Lost { 1.0 } else { 0.0 },
             ..Default::default()
         }),
+        damaged: false,
     };
     let image = (0..meta.len())
         .map(|i| ((i as u64 * 7 + seq * 31) % 251) as u8)

@@ -27,6 +27,7 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::ipc;
 pub use messages::{CableObservationData, Stamp, StepStatus, StopCause};
 use model::bounds::Fixes;
+use std::os::fd::BorrowedFd;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -50,6 +51,10 @@ pub struct FrameMeta {
     /// The cable's true line in this frame, where the source knows it (the twin does; a dive when it
     /// was recorded from the twin); `None` otherwise.
     pub truth: Option<CableObservationData>,
+    /// The image is not whole: a compressed video frame decoded with data missing (a lost packet in
+    /// it, or in a frame it references since the last keyframe) or with a decoder error. The rest of
+    /// the metadata is sound; the image must not be trusted (perception does not track on it).
+    pub damaged: bool,
 }
 
 impl Default for FrameMeta {
@@ -63,6 +68,7 @@ impl Default for FrameMeta {
             step: 0,
             status: StepStatus::Running,
             truth: None,
+            damaged: false,
         }
     }
 }
@@ -95,7 +101,8 @@ pub enum Read {
     /// the caller's frame holds it again; publish it again so that whoever missed it can answer.
     Repeat,
     /// No frame yet: read again after `until` (a paced recording), or when the source's listener is
-    /// notified ([`Wake::Listener`], `until` is `None`).
+    /// notified or its descriptor readable ([`Wake::Listener`], [`Wake::Readable`]: `until` is
+    /// `None`).
     Pending { until: Option<Instant> },
     /// The source has no more frames (the end of a recording). Live sources never end.
     End,
@@ -107,6 +114,10 @@ pub enum Wake<'a> {
     Listener(&'a Listener<ipc::Service>),
     /// Read again at this period (the source's pace); frames due within half a period are yielded.
     Every(Duration),
+    /// Block until this file descriptor is readable: the source's own thread signals it (an
+    /// eventfd) when a frame or an error is ready. `read` clears it, so a reader reads after every
+    /// wake-up, until `Pending`.
+    Readable(BorrowedFd<'a>),
 }
 
 /// Where a source's frame counter comes from, which tells a reader how to keep its own sequence
@@ -298,6 +309,14 @@ pub enum AdapterError {
     BadFrame {
         adapter: String,
         seq: u64,
+        reason: String,
+    },
+    /// A live source received packets it cannot use (not its protocol, truncated, another
+    /// stream's): `count` of them since the last report, the first one's `reason`.
+    #[error("{adapter}: {count} packet(s) refused: {reason}")]
+    BadPacket {
+        adapter: String,
+        count: u64,
         reason: String,
     },
     /// A frame of another size than the source's.

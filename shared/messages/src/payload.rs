@@ -264,16 +264,31 @@ impl From<&CableObservationData> for model::CableObservation {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::CameraFrameHeader/2")]
+#[type_name("cabletrack::CameraFrameHeader/3")]
 pub struct CameraFrameHeader {
     pub stamp: Stamp,
     /// Pixels.
     pub width: u32,
     /// Pixels.
     pub height: u32,
+    /// What is known of the image, bits: 1 damaged (a compressed frame decoded with data missing:
+    /// perception does not track on it).
+    pub flags: u32,
+    #[serde(skip)]
+    pub _reserved: [u8; 4],
     /// The geometric camera's line for this frame, where it is known (simulation); `found = 0`
     /// otherwise. Ideal perception passes it on; image perception is checked against it.
     pub truth: CableObservationData,
+}
+
+impl CameraFrameHeader {
+    /// The image is not whole (a compressed video frame decoded with data missing): perception
+    /// does not track on it.
+    pub const DAMAGED: u32 = 1;
+
+    pub fn is_damaged(&self) -> bool {
+        self.flags & Self::DAMAGED != 0
+    }
 }
 
 /// What perception found in a frame: an estimate of the cable's line and its rates.

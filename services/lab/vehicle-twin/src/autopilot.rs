@@ -173,7 +173,9 @@ pub(crate) fn run(
     log: &mut TrialLog,
 ) -> anyhow::Result<()> {
     let mut link = Link::open(setup.url)?;
-    let fd = runtime::Fd::of(&link.socket);
+    // The loop waits on the socket while the handler reads and writes it: it waits on a duplicate.
+    let waker = link.socket.try_clone()?;
+    let fd = std::os::fd::AsFd::as_fd(&waker);
     let autopilot = ArduSub::new(&setup.params, setup.faults.clone(), Instant::now());
     let piloted = Piloted::new(twin, autopilot)
         .map_err(|e| anyhow::anyhow!("--autopilot needs the BlueROV2's vectored layout: {e}"))?;
@@ -186,8 +188,8 @@ pub(crate) fn run(
         "the ArduSub stand-in is on its MAVLink port"
     );
     match setup.lockstep {
-        Some(limits) => lockstep(rt, &mut link, &fd, piloted, limits, &setup, camera, log),
-        None => real_time(rt, &mut link, &fd, piloted, &setup, camera, log),
+        Some(limits) => lockstep(rt, &mut link, fd, piloted, limits, &setup, camera, log),
+        None => real_time(rt, &mut link, fd, piloted, &setup, camera, log),
     }
 }
 
@@ -195,7 +197,7 @@ pub(crate) fn run(
 fn lockstep(
     rt: &Runtime,
     link: &mut Link,
-    fd: &runtime::Fd,
+    fd: std::os::fd::BorrowedFd<'_>,
     piloted: Piloted,
     limits: Limits,
     setup: &Setup,
@@ -238,7 +240,7 @@ fn lockstep(
             Ok(Flow::Continue)
         };
     act(&mut lockstep, first)?;
-    rt.serve_with_fds(&[], &[fd], Timer::Interval(TICK), |_| {
+    rt.serve_inputs(&[runtime::Input::Readable(fd)], Timer::Interval(TICK), |_| {
         let now = Instant::now();
         let frames = link.receive(now, &lockstep.plant().autopilot)?;
         for frame in frames {
@@ -268,7 +270,7 @@ fn lockstep(
 fn real_time(
     rt: &Runtime,
     link: &mut Link,
-    fd: &runtime::Fd,
+    fd: std::os::fd::BorrowedFd<'_>,
     piloted: Piloted,
     setup: &Setup,
     camera: &mut Camera,
@@ -279,7 +281,7 @@ fn real_time(
         mut autopilot,
     } = piloted;
     let mut clock = RealTime::new(twin, setup.period, setup.trials);
-    rt.serve_with_fds(&[], &[fd], Timer::Interval(TICK), |_| {
+    rt.serve_inputs(&[runtime::Input::Readable(fd)], Timer::Interval(TICK), |_| {
         let now = Instant::now();
         for frame in link.receive(now, &autopilot)? {
             // Tags are for lockstep; in real time each period takes the newest input held.
