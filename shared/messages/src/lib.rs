@@ -41,8 +41,7 @@ pub use payload::{
     AutopilotAttitude, AutopilotDepth, AutopilotState, CableObservationData, CableObservationMsg,
     CameraFrameHeader, DofCommand, LearningStats, Mission, MissionCommand, RecorderStatus,
     SERVO_CHANNELS, STATUS_TEXT_LEN, ServiceEvent, ServoOutputs, SetpointsForm, Stamp, Stamped,
-    StatusText,
-    StepStatus, StopCause, SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
+    StatusText, StepStatus, StopCause, SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
 };
 pub use ports::{FrameInbox, FrameOutbox, FrameTap, Heartbeat, Inbox, Outbox, PortError, Tap};
 pub use topics::{Endpoint, Qos, Topic};
