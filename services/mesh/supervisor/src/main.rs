@@ -6,7 +6,8 @@
 //! and stop is logged and published on the endpoint's `supervisor/events` topic.
 
 use anyhow::{Context, Result, bail};
-use clap::Parser;
+use clap::parser::ValueSource;
+use clap::{CommandFactory, FromArgMatches, Parser};
 use iceoryx2::prelude::{Node, ipc};
 use messages::{Endpoint, Outbox, ServiceEvent, SupervisorEvent, topics};
 use runtime::process::{self, Child, Spawn};
@@ -43,9 +44,13 @@ struct Args {
     /// Seconds an observer (`observer = true`) gets to say it is ready before the mesh is given up.
     #[arg(long, default_value_t = 30.0)]
     ready_timeout_s: f64,
-    /// The configuration directory, passed to every service.
-    #[arg(long, default_value = "config", env = "CABLETRACK_CONFIG")]
-    config: PathBuf,
+    /// The configuration directory, passed to every service [default: the mesh file's `config`
+    /// key, else CABLETRACK_CONFIG, else `config`]. Given here, it wins over the mesh file's.
+    #[arg(long, env = "CABLETRACK_CONFIG")]
+    config: Option<PathBuf>,
+    /// Whether --config was on the command line (not from the environment).
+    #[arg(skip)]
+    config_given: bool,
     /// The experiment's seed, passed to every service (and as `{seed}`).
     #[arg(long, default_value_t = 1, env = "CABLETRACK_SEED")]
     seed: u64,
@@ -63,7 +68,13 @@ fn main() -> ExitCode {
     runtime::init_tracing();
     let span = tracing::info_span!("supervisor");
     let _entered = span.enter();
-    match run(Args::parse()) {
+    let matches = Args::command().get_matches();
+    let mut args = match Args::from_arg_matches(&matches) {
+        Ok(args) => args,
+        Err(e) => e.exit(),
+    };
+    args.config_given = matches.value_source("config") == Some(ValueSource::CommandLine);
+    match run(args) {
         Ok(code) => code,
         Err(err) => {
             tracing::error!("{err:#}");
@@ -232,10 +243,18 @@ fn run(args: Args) -> Result<ExitCode> {
             .context("the supervisor's directory")?
             .to_owned(),
     };
-    let config_dir = args
-        .config
+    // --config given wins; then the mesh's own directory (a BlueROV2's mesh runs on its model
+    // whatever the environment says); then CABLETRACK_CONFIG; then `config`.
+    let config = match (args.config_given, mesh.config_dir(&args.mesh)) {
+        (false, Some(dir)) => dir,
+        _ => args
+            .config
+            .clone()
+            .unwrap_or_else(|| PathBuf::from("config")),
+    };
+    let config_dir = config
         .canonicalize()
-        .with_context(|| format!("config directory {}", args.config.display()))?;
+        .with_context(|| format!("config directory {}", config.display()))?;
     let iox = args.iox.config()?;
     let signals = Signals::install()?;
     let node = runtime::create_node("supervisor", &iox)?;

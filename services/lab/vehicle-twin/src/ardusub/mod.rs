@@ -195,9 +195,11 @@ pub struct StepTag {
 /// The name of the lockstep tag.
 pub const STEP_TAG: &str = "ct_step";
 
-/// What was refused or dropped, by cause (the shell logs them).
+/// What was taken, refused or dropped, by cause (the shell logs them).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Counters {
+    /// MANUAL_CONTROL taken: from a ground station, for this system.
+    pub manual_control: u64,
     /// MANUAL_CONTROL from a system id that is not a ground station's.
     pub not_from_gcs: u64,
     /// MANUAL_CONTROL addressed to another system.
@@ -509,6 +511,7 @@ impl ArduSub {
                     self.counters.not_for_us += 1;
                     return None;
                 }
+                self.counters.manual_control += 1;
                 self.sticks =
                     Sticks::from_joystick(m.x, m.y, m.z, m.r, self.gain, self.param("JS_THR_GAIN"));
                 self.last_pilot_input = now;
