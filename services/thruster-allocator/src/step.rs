@@ -1,7 +1,7 @@
 //! The allocator in the mesh's lockstep, as a plain state machine fed the time (the
 //! `thruster-allocator` binary binds it to its four ports): the surge, sway and yaw commands of one
 //! step in, that step's thruster setpoints out, computed once. Every command's stamp is judged first
-//! (`runtime::lockstep::Screen`: a stale, older or absurd step is refused; a restarted producer's new
+//! (`runtime::screen::Screen`: a stale, older or absurd step is refused; a restarted producer's new
 //! epoch is followed). A step whose commands do not all arrive within the deadline of its first is
 //! allocated with the missing ones as 0 (their bits set in `ThrusterSetpoints::missing`); an
 //! incomplete step overtaken by a newer one is dropped; a command of a step already answered (a
@@ -10,7 +10,8 @@
 use crate::Allocator;
 use messages::{DofCommand, Stamp, ThrusterSetpoints};
 use model::bounds::Fixes;
-use runtime::lockstep::{Gather, Once, Partial, Refusal, Screen};
+use runtime::lockstep::{Gather, Once, Partial};
+use runtime::screen::{Refusal, Screen};
 use std::time::{Duration, Instant};
 
 /// The allocator's inputs, in the order of the `missing` bits of `ThrusterSetpoints`.
@@ -193,7 +194,7 @@ mod tests {
         StepAllocator::new(
             Allocator::new(&Scenario::default().thrusters),
             100 * MS,
-            Screen::new("commands", runtime::lockstep::ScreenLimits::control(0.2)),
+            Screen::new("commands", runtime::screen::ScreenLimits::control(0.2)),
         )
     }
 

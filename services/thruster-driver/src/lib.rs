@@ -15,7 +15,7 @@
 use adapters::failsafe::{Failsafe, Thrust};
 use adapters::{AdapterError, Applied, StopCause, ThrusterSink};
 use messages::ThrusterSetpoints;
-use runtime::lockstep::{Refusal, Screen, Verdict};
+use runtime::screen::{Refusal, Screen, Verdict};
 use std::time::Duration;
 
 /// Which thruster sink the driver owns.
@@ -160,7 +160,7 @@ mod tests {
     use super::*;
     use adapters::record::NullSink;
     use messages::{Stamp, StepStatus};
-    use runtime::lockstep::ScreenLimits;
+    use runtime::screen::ScreenLimits;
 
     const MS: u64 = 1_000_000;
     const T0: u64 = 7_200_000 * MS;

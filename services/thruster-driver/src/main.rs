@@ -8,7 +8,7 @@ use adapters::record::{NullSink, RecordSink};
 use adapters::twin::TwinThrusterSink;
 use clap::Parser;
 use messages::{Endpoint, topics};
-use runtime::lockstep::{Screen, ScreenLimits};
+use runtime::screen::{Screen, ScreenLimits};
 use runtime::{BadValues, CommonArgs, Runtime, Watch};
 use std::process::ExitCode;
 use std::time::Duration;

@@ -5,7 +5,7 @@
 //! wakes it on time; the conformance suite drives it over every sink with a clock of its own.
 //!
 //! Freshness: setpoints are valid until the time given with them (the driver gives the step's age
-//! limit on its clock, `runtime::lockstep::Screen::fresh_until`, or arrival plus the deadline for
+//! limit on its clock, `runtime::screen::Screen::fresh_until`, or arrival plus the deadline for
 //! untimed stamps). Once that passes without newer ones, [`Failsafe::on_time`] stops the thrusters,
 //! once, until setpoints come again.
 

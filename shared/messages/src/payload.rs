@@ -7,7 +7,7 @@ pub use config::StepStatus;
 
 /// The step a message belongs to. Copied unchanged from the step's first message (the simulator's
 /// vehicle state, the vehicle camera's frame) through every stage, so every consumer judges it alike
-/// (`runtime::lockstep::Screen`).
+/// (`runtime::screen::Screen`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
 #[type_name("cabletrack::Stamp/2")]

@@ -1,7 +1,7 @@
 //! The vehicle clock: the machine's monotonic clock (`CLOCK_MONOTONIC`), which no wall-clock
 //! setting, NTP or missing RTC ever steps. The vehicle camera stamps each step with it
 //! ([`messages::Stamp::clock_ns`]) and every consumer judges a stamp's age against it
-//! ([`crate::lockstep::Screen`]). 0 is never a reading: it marks an untimed stamp.
+//! ([`crate::screen::Screen`]). 0 is never a reading: it marks an untimed stamp.
 //!
 //! A process's clock may be offset from the machine's by the number of milliseconds in the file named
 //! by `CABLETRACK_CLOCK_OFFSET_FILE`, read once at start: how the fault drill starts a service whose

@@ -1,8 +1,8 @@
 //! What every cabletrack process shares, written once: the common command line, tracing, the
 //! configuration, the iceoryx2 node (isolated by a prefix and root, with dead nodes' leftovers
 //! removed at start), clean shutdown on SIGINT/SIGTERM, the blocking wait loop, the lockstep
-//! protocol ([`lockstep`], [`Runtime::serve_steps`]) with its one judge of stamps
-//! ([`lockstep::Screen`]), the vehicle clock ([`clock`]), rate-limited warnings ([`Tally`],
+//! protocol ([`lockstep`], [`Runtime::serve_steps`]), the one judge of stamps every consumer
+//! uses ([`screen::Screen`]), the vehicle clock ([`clock`]), rate-limited warnings ([`Tally`],
 //! [`BadValues`]), and the processes a program starts ([`process`], [`Namespace`]).
 //!
 //! A service's `main` reads:
@@ -26,6 +26,7 @@ pub mod lockstep;
 mod namespace;
 mod node;
 pub mod process;
+pub mod screen;
 mod steps;
 mod tally;
 mod wait;

@@ -191,10 +191,10 @@ impl Runtime {
     }
 
     /// The judge of the stamps arriving on `input` (a topic name), with the control loop's limits.
-    pub fn screen(&self, input: impl Into<String>) -> crate::lockstep::Screen {
-        crate::lockstep::Screen::new(
+    pub fn screen(&self, input: impl Into<String>) -> crate::screen::Screen {
+        crate::screen::Screen::new(
             input,
-            crate::lockstep::ScreenLimits::control(self.scenario.timing.sample_time_s),
+            crate::screen::ScreenLimits::control(self.scenario.timing.sample_time_s),
         )
     }
 

@@ -1,13 +1,13 @@
 //! `monitor`: prints each episode's returns as the mesh learns, and writes the run's record (after
 //! every episode, so a restarted monitor carries on from it). Reports whose stamp is refused
-//! (`runtime::lockstep::Screen`) or that cannot be true (`monitor::check`) are not recorded.
+//! (`runtime::screen::Screen`) or that cannot be true (`monitor::check`) are not recorded.
 
 use anyhow::Context;
 use clap::Parser;
 use config::Dof;
 use messages::topics;
 use monitor::{Episodes, RunRecord, TracePoint};
-use runtime::lockstep::{Screen, ScreenLimits, Verdict};
+use runtime::screen::{Screen, ScreenLimits, Verdict};
 use runtime::{CommonArgs, Flow, Tally, Timer};
 use std::io::Write;
 use std::path::PathBuf;
@@ -77,7 +77,7 @@ fn main() -> ExitCode {
         // trial, so its age says little, and a producer whose clock is behind (a camera restarted
         // with its time base stepped back) cannot show its pace before its next trial; timed,
         // every report of that epoch would be refused. A forged `seq` in the live epoch is still
-        // refused: the jump is bounded (`lockstep::MAX_UNTIMED_JUMP` steps, many trials).
+        // refused: the jump is bounded (`screen::MAX_UNTIMED_JUMP` steps, many trials).
         let limits = ScreenLimits::control(rt.scenario().timing.sample_time_s);
         let untimed = |s: &messages::Stamp| messages::Stamp { clock_ns: 0, ..*s };
         let floors = inboxes

@@ -7,7 +7,7 @@
 //! step and the mesh stays deterministic; and it judges every stamp first ([`Screen`]): a new epoch
 //! is followed, an older, stale or absurd step refused.
 
-use super::screen::{Refusal, Screen, Verdict};
+use crate::screen::{Refusal, Screen, Verdict};
 use messages::Stamp;
 use std::time::{Duration, Instant};
 
@@ -201,7 +201,7 @@ pub struct Partial<T, const N: usize> {
 mod tests {
     use super::*;
 
-    use crate::lockstep::ScreenLimits;
+    use crate::screen::ScreenLimits;
     use messages::StepStatus;
 
     fn once() -> Once<u64> {
