@@ -25,7 +25,6 @@ use crate::{
 };
 use std::io::{BufRead, BufWriter, Write};
 use std::path::{Path, PathBuf};
-use std::time::{SystemTime, UNIX_EPOCH};
 
 /// The first line of a record file.
 pub const RECORD_MAGIC: &str = "# cabletrack thruster record v2";
@@ -114,9 +113,7 @@ impl RecordSink {
         stop: Option<StopCause>,
         values: &[f64],
     ) -> Result<(), AdapterError> {
-        let written = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos() as u64);
+        let written = runtime::clock::unix_ns();
         let mut line = format!(
             "{},{},{},{},{},{},{},{written},{}",
             stamp.seq,

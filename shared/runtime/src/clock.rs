@@ -1,7 +1,13 @@
-//! The vehicle clock: the machine's monotonic clock (`CLOCK_MONOTONIC`), which no wall-clock
-//! setting, NTP or missing RTC ever steps. The vehicle camera stamps each step with it
+//! The clocks every process reads, read in one place.
+//!
+//! The vehicle clock: the machine's monotonic clock (`CLOCK_MONOTONIC`, [`monotonic_ns`]), which no
+//! wall-clock setting, NTP or missing RTC ever steps. The vehicle camera stamps each step with it
 //! ([`messages::Stamp::clock_ns`]) and every consumer judges a stamp's age against it
-//! ([`crate::screen::Screen`]). 0 is never a reading: it marks an untimed stamp.
+//! ([`crate::screen::Screen`]); the benchmarks time messages across processes with it. 0 is never a
+//! reading: it marks an untimed stamp.
+//!
+//! The wall clock ([`unix_ns`]) only for what people read beside a run: the supervisor's events,
+//! the recorder's status and parts, a record sink's lines. No step is ever judged by it.
 //!
 //! A process's clock may be offset from the machine's by the number of milliseconds in the file named
 //! by `CABLETRACK_CLOCK_OFFSET_FILE`, read once at start: how the fault drill starts a service whose
@@ -10,6 +16,7 @@
 
 use crate::RuntimeError;
 use std::path::Path;
+use std::time::{SystemTime, UNIX_EPOCH};
 
 /// The environment variable naming the offset file (see the module docs).
 pub const OFFSET_FILE_ENV: &str = "CABLETRACK_CLOCK_OFFSET_FILE";
@@ -25,6 +32,13 @@ pub fn monotonic_ns() -> u64 {
         libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts);
     }
     ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// The wall clock in nanoseconds since 1970 (0 for a clock set before it).
+pub fn unix_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
 }
 
 /// A process's view of the vehicle clock: the monotonic clock plus a fixed offset.
@@ -129,5 +143,13 @@ mod tests {
         assert!(err.contains("soon") && err.contains("offset"), "{err}");
         assert_ne!(clock.new_epoch(), 0);
         assert_ne!(clock.new_epoch(), clock.new_epoch());
+    }
+
+    #[test]
+    fn the_wall_clock_reads_the_time_since_1970() {
+        // 2020-09-13 in ns: a wall clock below it is not read in ns since 1970.
+        assert!(unix_ns() > 1_600_000_000_000_000_000);
+        let a = monotonic_ns();
+        assert!(monotonic_ns() >= a && a > 0);
     }
 }

@@ -35,6 +35,5 @@ pub mod procfs;
 pub mod report;
 pub mod ring;
 pub mod runs;
-pub mod stats;
 pub mod timeline;
 pub mod vehicle;

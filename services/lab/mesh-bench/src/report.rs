@@ -2,9 +2,9 @@
 
 use crate::ring::Shape;
 use crate::runs::{InProcessRun, MeshRun, ProcessUse, RingRun};
-use crate::stats::{Summary, median};
 use crate::timeline::{HOPS, SLOWEST, SlowStep};
 use serde::{Deserialize, Serialize};
+use stats::{Summary, median};
 use std::fmt::Write;
 
 /// The machine the bench ran on.

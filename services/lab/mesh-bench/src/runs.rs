@@ -5,13 +5,14 @@
 use crate::probe::{self, Observed, Probe, Progress};
 use crate::procfs::{self, ProcSample, SchedCounts};
 use crate::ring::{self, NodeReport, RingOptions, Role, Shape};
-use crate::stats::{Summary, now_ns};
 use crate::timeline::HopLatencies;
 use anyhow::{Context, Result, bail};
 use messages::Endpoint;
 use runtime::Namespace;
+use runtime::clock::monotonic_ns;
 use runtime::process::{Child, Placement, Spawn};
 use serde::{Deserialize, Serialize};
+use stats::Summary;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -238,7 +239,7 @@ fn watch(
         let seq = progress.latest_seq()?;
         let procs = pids().into_iter().filter_map(procfs::sample).collect();
         ticks.push(Tick {
-            t_ns: now_ns(),
+            t_ns: monotonic_ns(),
             seq,
             procs,
             busy_ns: procfs::machine_busy_ns(),

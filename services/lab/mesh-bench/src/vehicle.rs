@@ -10,10 +10,11 @@
 
 use crate::procfs;
 use crate::runs::{ProcessUse, RingRun, Tick, brief_step_one, spawn, usage};
-use crate::stats::{Summary, now_ns};
 use anyhow::{Context, Result, bail};
 use runtime::Namespace;
+use runtime::clock::monotonic_ns;
 use serde::{Deserialize, Serialize};
+use stats::Summary;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -177,13 +178,13 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     let sup_pid = sup.started_pid() as i32;
     let limit = Duration::from_secs_f64(expected_s * 1.5 + 120.0);
     let period_ns = setup.period_s / setup.speed * 1e9;
-    let t0 = now_ns();
+    let t0 = monotonic_ns();
     let mut ticks = Vec::new();
     let mut last_progress = Instant::now();
     while sup.try_status().is_none() {
         let mut pids = procfs::children(sup_pid);
         pids.push(sup_pid);
-        let t_ns = now_ns();
+        let t_ns = monotonic_ns();
         ticks.push(Tick {
             t_ns,
             // Control periods so far: the clock paces the loop, so CPU per period is CPU per step.

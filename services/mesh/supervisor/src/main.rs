@@ -165,9 +165,7 @@ impl Events {
             return;
         };
         self.seq += 1;
-        let wall = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos() as u64);
+        let wall = runtime::clock::unix_ns();
         let mut event = SupervisorEvent::new(self.seq, wall, kind, &service.cmd.name);
         event.pid = pid;
         event.status = status;
