@@ -52,6 +52,14 @@ pub struct IoxSettings {
 const MAX_ROOT_AND_PREFIX: usize = 63;
 
 impl IoxSettings {
+    /// The environment a child process needs to join this namespace (as [`CommonArgs`] reads it).
+    pub fn env(&self) -> [(&'static str, String); 2] {
+        [
+            ("CABLETRACK_IOX_PREFIX", self.prefix.clone()),
+            ("CABLETRACK_IOX_ROOT", self.root.clone()),
+        ]
+    }
+
     /// The iceoryx2 configuration for these settings.
     pub fn config(&self) -> Result<IoxConfig, RuntimeError> {
         let root = if self.root.ends_with('/') {

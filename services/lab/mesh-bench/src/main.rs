@@ -522,7 +522,17 @@ fn bench(args: &Bench) -> Result<()> {
         &markdown,
         args.json.as_deref(),
         args.markdown.as_deref(),
-    )
+    )?;
+    left_nothing_behind(results.leftovers())
+}
+
+/// Fails a benchmark whose runs left shared-memory files behind (each run has a namespace of its
+/// own and counts what is left of it before removing it).
+fn left_nothing_behind(leftovers: usize) -> Result<()> {
+    if leftovers > 0 {
+        anyhow::bail!("the runs left {leftovers} shared-memory files behind (see the report)");
+    }
+    Ok(())
 }
 
 /// The bare ring alone, `--repeats` runs: each run's step latency and hops.
@@ -684,5 +694,11 @@ fn record(args: &RecordArgs) -> Result<()> {
         bytes_per_step / 1e3,
         holes,
     );
-    report(&pairs, &markdown, args.json.as_deref(), None)
+    report(&pairs, &markdown, args.json.as_deref(), None)?;
+    left_nothing_behind(
+        pairs
+            .iter()
+            .map(|(off, on)| off.leftovers + on.leftovers)
+            .sum(),
+    )
 }

@@ -506,8 +506,19 @@ impl Results {
             perception.in_process,
             perception.ratio(),
         );
-        let leftovers: usize = self
-            .mesh
+        let _ = writeln!(
+            out,
+            "\nShared-memory files left behind by all {} runs of processes: {}.",
+            self.mesh.len() + self.mesh_probe.len() + self.ring.len() + self.ring_probe.len(),
+            self.leftovers()
+        );
+        out
+    }
+
+    /// The shared-memory files all runs of processes left behind in their namespaces (a clean run:
+    /// none).
+    pub fn leftovers(&self) -> usize {
+        self.mesh
             .iter()
             .chain(&self.mesh_probe)
             .map(|r| r.leftovers)
@@ -517,13 +528,7 @@ impl Results {
                     .chain(&self.ring_probe)
                     .map(|r| r.leftovers),
             )
-            .sum();
-        let _ = writeln!(
-            out,
-            "\nShared-memory files left behind by all {} runs of processes: {leftovers}.",
-            self.mesh.len() + self.mesh_probe.len() + self.ring.len() + self.ring_probe.len()
-        );
-        out
+            .sum()
     }
 }
 

@@ -4,6 +4,11 @@
 //! services named in `stop_when` are done, and on SIGINT/SIGTERM stops them all: SIGTERM to each, a
 //! grace period, then SIGKILL (`runtime::process`), the observers last. Every start, exit, restart
 //! and stop is logged and published on the endpoint's `supervisor/events` topic.
+//!
+//! With `--own-namespace` the mesh runs in an iceoryx2 namespace of the run's own (a prefix and a
+//! root no other run uses, `runtime::Namespace`), printed at start; when the run ends the supervisor
+//! checks that its services left no shared memory behind (the run fails if they did) and removes
+//! the namespace.
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
@@ -51,6 +56,11 @@ struct Args {
     seed: u64,
     #[command(flatten)]
     iox: runtime::IoxSettings,
+    /// Run in an iceoryx2 namespace of this run's own instead of --iox-prefix and --iox-root: a
+    /// prefix and a root no other run uses, printed at start, removed when the run ends (the run
+    /// fails if the services left shared memory behind).
+    #[arg(long)]
+    own_namespace: bool,
 }
 
 fn parse_key_value(s: &str) -> Result<(String, String), String> {
@@ -234,16 +244,30 @@ fn run(args: Args) -> Result<ExitCode> {
         .config
         .canonicalize()
         .with_context(|| format!("config directory {}", args.config.display()))?;
-    let iox = args.iox.config()?;
+    // Dropped last: removes the run's own namespace whichever way the run ends.
+    let own = args.own_namespace.then(|| runtime::Namespace::new("mesh"));
+    let iox_settings = match &own {
+        Some(ns) => {
+            cli::outln!(
+                "supervisor: this run's own namespace: --iox-prefix {} --iox-root {}",
+                ns.iox.prefix,
+                ns.iox.root
+            )?;
+            ns.iox.clone()
+        }
+        None => args.iox.clone(),
+    };
+    let iox = iox_settings.config()?;
     let signals = Signals::install()?;
     let node = runtime::create_node("supervisor", &iox)?;
     let mut events = Events::open(&node, endpoint);
 
+    let [prefix_env, root_env] = iox_settings.env();
     let env = [
         ("CABLETRACK_CONFIG", config_dir.display().to_string()),
         ("CABLETRACK_SEED", args.seed.to_string()),
-        ("CABLETRACK_IOX_PREFIX", args.iox.prefix.clone()),
-        ("CABLETRACK_IOX_ROOT", args.iox.root.clone()),
+        prefix_env,
+        root_env,
     ];
     let mut services = Vec::new();
     for cmd in commands {
@@ -393,6 +417,7 @@ fn run(args: Args) -> Result<ExitCode> {
     stop_all(&mut services, false, grace, &mut events);
     stop_all(&mut services, true, grace, &mut events);
     drop(events);
+    drop(watch);
     drop(node);
     let cleaned = runtime::remove_dead_nodes(&iox);
     if cleaned > 0 {
@@ -401,6 +426,18 @@ fn run(args: Args) -> Result<ExitCode> {
             "removed the leftovers of processes that had to be killed"
         );
     }
+    // The services are gone: what is still there of the run's own namespace they left behind.
+    let left = own.as_ref().map_or_else(Vec::new, |ns| ns.leftovers());
+    let outcome = match outcome {
+        Ok(()) if !left.is_empty() => Err(format!(
+            "the services left shared-memory files behind: {left:?}"
+        )),
+        Err(why) if !left.is_empty() => {
+            tracing::error!(files = ?left, "the services left shared-memory files behind");
+            Err(why)
+        }
+        outcome => outcome,
+    };
     match outcome {
         Ok(()) => {
             tracing::info!("mesh stopped");
