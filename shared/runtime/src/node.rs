@@ -30,7 +30,7 @@ pub struct CommonArgs {
 
 /// Where the iceoryx2 resources live. Processes with another prefix and root never meet: tests run
 /// isolated and in parallel.
-#[derive(clap::Args, Clone, Debug)]
+#[derive(clap::Args, Clone, Debug, PartialEq, Eq)]
 pub struct IoxSettings {
     /// Prefix of every shared-memory file and socket.
     #[arg(
@@ -46,6 +46,74 @@ pub struct IoxSettings {
         env = "CABLETRACK_IOX_ROOT"
     )]
     pub root: String,
+}
+
+/// The command line that runs a mesh: the `supervisor` parses it (flattened into its own options),
+/// and a program that starts a supervisor (a test, a benchmark) writes it with
+/// [`MeshArgs::command_line`], so the two never disagree.
+#[derive(clap::Args, Clone, Debug, PartialEq, Eq)]
+pub struct MeshArgs {
+    /// The mesh file (e.g. config/sim-mesh.toml).
+    #[arg(long)]
+    pub mesh: PathBuf,
+    /// A placeholder's value in the mesh file, KEY=VALUE (repeatable).
+    #[arg(long = "set", value_parser = parse_key_value)]
+    pub set: Vec<(String, String)>,
+    /// The configuration directory, passed to every service.
+    #[arg(long, default_value = "config", env = "CABLETRACK_CONFIG")]
+    pub config: PathBuf,
+    /// The experiment's seed, passed to every service (and as `{seed}`).
+    #[arg(long, default_value_t = 1, env = "CABLETRACK_SEED")]
+    pub seed: u64,
+    #[command(flatten)]
+    pub iox: IoxSettings,
+}
+
+impl MeshArgs {
+    /// `mesh` with the experiment's `seed` and the configuration in `config`, in the iceoryx2
+    /// namespace `iox`; no placeholder set yet.
+    pub fn new(mesh: &Path, config: &Path, seed: u64, iox: &IoxSettings) -> MeshArgs {
+        MeshArgs {
+            mesh: mesh.to_owned(),
+            set: Vec::new(),
+            config: config.to_owned(),
+            seed,
+            iox: iox.clone(),
+        }
+    }
+
+    /// With `--set KEY=VALUE` for each of `sets` too.
+    pub fn with_sets<'a>(mut self, sets: impl IntoIterator<Item = &'a (&'a str, String)>) -> Self {
+        self.set
+            .extend(sets.into_iter().map(|(k, v)| ((*k).to_owned(), v.clone())));
+        self
+    }
+
+    /// The arguments that parse back to these (the program's name not included).
+    pub fn command_line(&self) -> Vec<String> {
+        let mut args: Vec<String> = vec![
+            "--mesh".into(),
+            self.mesh.display().to_string(),
+            "--config".into(),
+            self.config.display().to_string(),
+            "--seed".into(),
+            self.seed.to_string(),
+            "--iox-prefix".into(),
+            self.iox.prefix.clone(),
+            "--iox-root".into(),
+            self.iox.root.clone(),
+        ];
+        for (k, v) in &self.set {
+            args.extend(["--set".into(), format!("{k}={v}")]);
+        }
+        args
+    }
+}
+
+fn parse_key_value(s: &str) -> Result<(String, String), String> {
+    s.split_once('=')
+        .map(|(k, v)| (k.to_owned(), v.to_owned()))
+        .ok_or_else(|| format!("`{s}` is not KEY=VALUE"))
 }
 
 /// An event socket is `<root><prefix><up to 39 digits>.event` and must fit in 108 bytes.
@@ -385,4 +453,41 @@ pub fn shm_leftovers(prefix: &str) -> Vec<String> {
         .into_iter()
         .filter(|n| !n.ends_with(".global_mgmt"))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Supervisor {
+        #[command(flatten)]
+        mesh: MeshArgs,
+    }
+
+    fn parse(args: &[String]) -> Result<MeshArgs, clap::Error> {
+        Supervisor::try_parse_from(std::iter::once("supervisor".to_owned()).chain(args.to_vec()))
+            .map(|s| s.mesh)
+    }
+
+    #[test]
+    fn a_mesh_command_line_parses_back_to_what_wrote_it() {
+        let iox = IoxSettings {
+            prefix: "nx1_".into(),
+            root: "/tmp/x y/".into(),
+        };
+        let args = MeshArgs::new(Path::new("config/sim-mesh.toml"), Path::new("/c"), 7, &iox)
+            .with_sets(&[
+                ("episodes", "3".to_owned()),
+                // An empty value, and one holding `=`: both kept as they are.
+                ("live", String::new()),
+                ("twin", "--twin-config=a.toml".to_owned()),
+            ]);
+        assert_eq!(parse(&args.command_line()).unwrap(), args);
+        let err = parse(&["--mesh".into(), "m.toml".into(), "--set".into(), "x".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("`x` is not KEY=VALUE"), "{err}");
+    }
 }

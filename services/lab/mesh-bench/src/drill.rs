@@ -270,12 +270,8 @@ pub fn run(setup: &DrillSetup) -> Result<DrillReport> {
     // The vehicle mesh, with many trials: the drill stops it when done.
     let offset_file = scratch.join("camera-clock-offset-ms");
     let record = scratch.join("step-two/run.json");
-    let args = supervisor::command_line(
-        &setup.vehicle_mesh,
-        Some(&setup.config_dir),
-        setup.seed,
-        &ns.iox,
-        &[
+    let args = runtime::MeshArgs::new(&setup.vehicle_mesh, &setup.config_dir, setup.seed, &ns.iox)
+        .with_sets(&[
             ("trials", "1000".into()),
             ("pacing", "--speed=1".into()),
             ("initial", step_one.display().to_string()),
@@ -285,8 +281,8 @@ pub fn run(setup: &DrillSetup) -> Result<DrillReport> {
                 "trace",
                 scratch.join("step-two/trace.jsonl").display().to_string(),
             ),
-        ],
-    );
+        ])
+        .command_line();
     let log = scratch.join("vehicle.log");
     let mut sup = spawn(
         "supervisor (vehicle)",

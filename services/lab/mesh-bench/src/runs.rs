@@ -66,18 +66,14 @@ pub fn brief_step_one(
 ) -> Result<PathBuf> {
     let scratch = ns.scratch();
     let step_one = scratch.join("step-one");
-    let args = supervisor::command_line(
-        sim_mesh,
-        Some(config_dir),
-        seed,
-        &ns.iox,
-        &[
+    let args = runtime::MeshArgs::new(sim_mesh, config_dir, seed, &ns.iox)
+        .with_sets(&[
             ("episodes", episodes.to_string()),
             ("eyes", "ideal".into()),
             ("state", step_one.display().to_string()),
             ("json", step_one.join("run.json").display().to_string()),
-        ],
-    );
+        ])
+        .command_line();
     eprintln!("{who}: step one, {episodes} episodes in simulation");
     let mut sup = spawn(
         "supervisor (step one)",
@@ -363,13 +359,9 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
         ));
         sets.push(("frame_every", k.to_string()));
     }
-    let args = supervisor::command_line(
-        &setup.mesh_file,
-        Some(&setup.config_dir),
-        setup.seed,
-        &ns.iox,
-        &sets,
-    );
+    let args = runtime::MeshArgs::new(&setup.mesh_file, &setup.config_dir, setup.seed, &ns.iox)
+        .with_sets(&sets)
+        .command_line();
     let started = Instant::now();
     let mut sup = spawn(
         "supervisor",

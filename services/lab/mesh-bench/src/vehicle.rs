@@ -134,12 +134,8 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     // Step two on the twin, at the vehicle's pace.
     let trials = setup.trials();
     let latency_file = scratch.join("latency.csv");
-    let args = supervisor::command_line(
-        &setup.vehicle_mesh,
-        Some(&setup.config_dir),
-        setup.seed,
-        &ns.iox,
-        &[
+    let args = runtime::MeshArgs::new(&setup.vehicle_mesh, &setup.config_dir, setup.seed, &ns.iox)
+        .with_sets(&[
             ("trials", trials.to_string()),
             ("pacing", format!("--speed={}", setup.speed)),
             ("initial", step_one.display().to_string()),
@@ -158,8 +154,8 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
                 "record",
                 scratch.join("record/flight.mcap").display().to_string(),
             ),
-        ],
-    );
+        ])
+        .command_line();
     std::fs::create_dir_all(scratch.join("record"))?;
     let expected_s =
         trials as f64 * (setup.steps_per_trial + 1) as f64 * setup.period_s / setup.speed;

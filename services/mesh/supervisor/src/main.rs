@@ -33,12 +33,8 @@ mod watch;
     about = "Runs a mesh of cabletrack services described by a file in config/."
 )]
 struct Args {
-    /// The mesh file (e.g. config/sim-mesh.toml).
-    #[arg(long)]
-    mesh: PathBuf,
-    /// A placeholder's value in the mesh file, KEY=VALUE (repeatable).
-    #[arg(long = "set", value_parser = parse_key_value)]
-    set: Vec<(String, String)>,
+    #[command(flatten)]
+    run: runtime::MeshArgs,
     /// Where the service programs are (default: beside this one).
     #[arg(long)]
     bin_dir: Option<PathBuf>,
@@ -48,25 +44,11 @@ struct Args {
     /// Seconds an observer (`observer = true`) gets to say it is ready before the mesh is given up.
     #[arg(long, default_value_t = 30.0)]
     ready_timeout_s: f64,
-    /// The configuration directory, passed to every service.
-    #[arg(long, default_value = "config", env = "CABLETRACK_CONFIG")]
-    config: PathBuf,
-    /// The experiment's seed, passed to every service (and as `{seed}`).
-    #[arg(long, default_value_t = 1, env = "CABLETRACK_SEED")]
-    seed: u64,
-    #[command(flatten)]
-    iox: runtime::IoxSettings,
     /// Run in an iceoryx2 namespace of this run's own instead of --iox-prefix and --iox-root: a
     /// prefix and a root no other run uses, printed at start, removed when the run ends (the run
     /// fails if the services left shared memory behind).
     #[arg(long)]
     own_namespace: bool,
-}
-
-fn parse_key_value(s: &str) -> Result<(String, String), String> {
-    s.split_once('=')
-        .map(|(k, v)| (k.to_owned(), v.to_owned()))
-        .ok_or_else(|| format!("`{s}` is not KEY=VALUE"))
 }
 
 fn main() -> ExitCode {
@@ -222,17 +204,17 @@ fn start(s: &mut Service, env: &[(&str, String)], ready_pipe: bool) -> Result<Ch
 }
 
 fn run(args: Args) -> Result<ExitCode> {
-    let mesh = MeshFile::load(&args.mesh)?;
+    let mesh = MeshFile::load(&args.run.mesh)?;
     let endpoint: Endpoint = mesh
         .mesh
         .endpoint
         .parse()
         .map_err(anyhow::Error::msg)
-        .with_context(|| format!("{}: mesh.endpoint", args.mesh.display()))?;
-    let mut vars: BTreeMap<String, String> = args.set.iter().cloned().collect();
+        .with_context(|| format!("{}: mesh.endpoint", args.run.mesh.display()))?;
+    let mut vars: BTreeMap<String, String> = args.run.set.iter().cloned().collect();
     vars.entry("seed".into())
-        .or_insert_with(|| args.seed.to_string());
-    let commands = mesh.commands(&vars, &args.mesh)?;
+        .or_insert_with(|| args.run.seed.to_string());
+    let commands = mesh.commands(&vars, &args.run.mesh)?;
     let bin_dir = match &args.bin_dir {
         Some(d) => d.clone(),
         None => std::env::current_exe()?
@@ -241,9 +223,10 @@ fn run(args: Args) -> Result<ExitCode> {
             .to_owned(),
     };
     let config_dir = args
+        .run
         .config
         .canonicalize()
-        .with_context(|| format!("config directory {}", args.config.display()))?;
+        .with_context(|| format!("config directory {}", args.run.config.display()))?;
     // Dropped last: removes the run's own namespace whichever way the run ends.
     let own = args.own_namespace.then(|| runtime::Namespace::new("mesh"));
     let iox_settings = match &own {
@@ -255,7 +238,7 @@ fn run(args: Args) -> Result<ExitCode> {
             )?;
             ns.iox.clone()
         }
-        None => args.iox.clone(),
+        None => args.run.iox.clone(),
     };
     let iox = iox_settings.config()?;
     let signals = Signals::install()?;
@@ -265,7 +248,7 @@ fn run(args: Args) -> Result<ExitCode> {
     let [prefix_env, root_env] = iox_settings.env();
     let env = [
         ("CABLETRACK_CONFIG", config_dir.display().to_string()),
-        ("CABLETRACK_SEED", args.seed.to_string()),
+        ("CABLETRACK_SEED", args.run.seed.to_string()),
         prefix_env,
         root_env,
     ];
@@ -292,7 +275,7 @@ fn run(args: Args) -> Result<ExitCode> {
         services.iter().map(|s| s.cmd.name.clone()).collect(),
         signals.write.try_clone()?,
     )?;
-    tracing::info!(mesh = %args.mesh.display(), services = services.len(), "starting the mesh");
+    tracing::info!(mesh = %args.run.mesh.display(), services = services.len(), "starting the mesh");
     let stop_when = mesh.mesh.stop_when.clone();
     let restart = mesh.restart.clone();
 
