@@ -114,31 +114,6 @@ struct RecordArgs {
 }
 
 #[derive(Args)]
-struct DrillArgs {
-    /// Random SIGKILLs across the vehicle services.
-    #[arg(long, default_value_t = 100)]
-    kills: u32,
-    /// Seed of the random choices and of the mesh.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    /// Step one's episodes in simulation, before the vehicle run (the drill needs a policy, not a
-    /// good one).
-    #[arg(long, default_value_t = 10)]
-    sim_episodes: u32,
-    /// Directory holding scenario.toml, learning.toml and twin.toml.
-    #[arg(long, default_value = "config")]
-    config: PathBuf,
-    /// The mesh files of step one and of the vehicle.
-    #[arg(long, default_value = "config/sim-mesh.toml")]
-    sim_mesh: PathBuf,
-    #[arg(long, default_value = "config/vehicle.toml")]
-    vehicle_mesh: PathBuf,
-    /// Write the figures here as JSON (and the vehicle mesh's log beside it, as .log).
-    #[arg(long)]
-    json: Option<PathBuf>,
-}
-
-#[derive(Args)]
 struct RingArgs {
     /// The path the ring takes.
     #[arg(long, value_enum, default_value_t = Shape::Vehicle)]
@@ -173,9 +148,6 @@ enum Hidden {
     /// The flight recorder's cost: the mesh's steps/s with the recorder off and on (pairs of runs,
     /// swapping places every repeat), the recorder's CPU per step and the record's bytes per step.
     Record(RecordArgs),
-    /// The fault drill of the vehicle's safety layer: kills, stalls, a second allocator, a camera
-    /// with its clock stepped back and a rogue publisher, in one run of the vehicle mesh.
-    Drill(DrillArgs),
     /// The vehicle endpoint: camera-to-thruster latency at 5 Hz over many steps, CPU and memory of
     /// every service (step one runs first, in simulation, for the policy the vehicle starts from).
     Vehicle(VehicleArgs),
@@ -252,7 +224,6 @@ fn main() -> ExitCode {
         Some(Hidden::Latencies { files }) => latencies(&files),
         Some(Hidden::Record(a)) => logged(|| record(&a)),
         Some(Hidden::Vehicle(a)) => logged(|| vehicle(&a)),
-        Some(Hidden::Drill(a)) => logged(|| drill(&a)),
         Some(Hidden::Ring(a)) => logged(|| bare_ring(&a)),
         None => logged(|| bench(&args)),
     };
@@ -331,31 +302,6 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
     )
 }
 
-fn drill(args: &DrillArgs) -> Result<()> {
-    let canon = |p: &PathBuf, what: &str| {
-        p.canonicalize()
-            .with_context(|| format!("{what} {}", p.display()))
-    };
-    let config_dir = canon(&args.config, "the config directory")?;
-    let scenario: config::Scenario = config::load(&config_dir.join("scenario.toml"))?;
-    let exe = std::env::current_exe()?;
-    let setup = mesh_bench::drill::DrillSetup {
-        bin_dir: exe.parent().context("the bench's directory")?.to_owned(),
-        sim_mesh: canon(&args.sim_mesh, "the mesh file")?,
-        vehicle_mesh: canon(&args.vehicle_mesh, "the mesh file")?,
-        config_dir,
-        kills: args.kills,
-        seed: args.seed,
-        sim_episodes: args.sim_episodes,
-        period_s: scenario.timing.sample_time_s,
-        keep_log: args.json.as_ref().map(|j| j.with_extension("log")),
-    };
-    let run = mesh_bench::drill::run(&setup)?;
-    let markdown = run.markdown();
-    cli::outln!("{}", serde_json::to_string_pretty(&run)?)?;
-    report(&run, &markdown, args.json.as_deref(), None)
-}
-
 /// Prints several invocations' figures (their `--json` files) side by side.
 fn spread(files: &[PathBuf]) -> Result<()> {
     let all = read_runs(files, |f, text| {
@@ -402,17 +348,7 @@ fn report(
     json: Option<&std::path::Path>,
     md: Option<&std::path::Path>,
 ) -> Result<()> {
-    cli::outln!("{markdown}")?;
-    if let Some(path) = json {
-        std::fs::write(path, serde_json::to_string_pretty(figures)?)
-            .with_context(|| format!("writing {}", path.display()))?;
-        eprintln!("mesh-bench: wrote {}", path.display());
-    }
-    if let Some(path) = md {
-        std::fs::write(path, markdown).with_context(|| format!("writing {}", path.display()))?;
-        eprintln!("mesh-bench: wrote {}", path.display());
-    }
-    Ok(())
+    mesh_bench::report::publish("mesh-bench", figures, markdown, json, md)
 }
 
 fn bench(args: &Bench) -> Result<()> {

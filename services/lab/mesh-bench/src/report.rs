@@ -3,9 +3,33 @@
 use crate::ring::Shape;
 use crate::runs::{InProcessRun, MeshRun, ProcessUse, RingRun};
 use crate::timeline::{HOPS, SLOWEST, SlowStep};
+use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use stats::{Summary, median};
 use std::fmt::Write;
+use std::path::Path;
+
+/// Prints a report in Markdown and writes it and the figures (JSON) where asked; `who` is the
+/// program that says so.
+pub fn publish(
+    who: &str,
+    figures: &impl Serialize,
+    markdown: &str,
+    json: Option<&Path>,
+    md: Option<&Path>,
+) -> Result<()> {
+    cli::outln!("{markdown}")?;
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(figures)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("{who}: wrote {}", path.display());
+    }
+    if let Some(path) = md {
+        std::fs::write(path, markdown).with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("{who}: wrote {}", path.display());
+    }
+    Ok(())
+}
 
 /// The machine the bench ran on.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

@@ -1,4 +1,4 @@
-//! The fault drill (`mesh-bench drill`, `scripts/fault-drill`): the vehicle mesh against the twin
+//! The fault drill (`fault-drill`, `scripts/fault-drill`): the vehicle mesh against the twin
 //! under the supervisor at the vehicle's 5 Hz, and, in one run, every fault the vehicle's safety
 //! layer is there for, with what reached the twin's thrusters as the evidence:
 //!
@@ -20,11 +20,14 @@
 //!
 //! Afterwards the supervisor is stopped (SIGTERM) and the drill counts panics in the services' logs,
 //! processes left running, shared-memory files left, and trials missing from the monitor's record.
+//!
+//! How it starts a mesh and watches it (step one in brief, a supervisor's process, a node of its
+//! own) is the mesh benchmark's (`mesh_bench`), used as it is.
 
-use crate::probe;
-use crate::runs::{brief_step_one, spawn};
 use anyhow::{Context, Result, bail};
 use iceoryx2::prelude::*;
+use mesh_bench::probe;
+use mesh_bench::runs::{brief_step_one, spawn};
 use messages::{
     CableObservationData, CableObservationMsg, CameraFrameHeader, DofCommand, Endpoint,
     FrameOutbox, LearningStats, Outbox, Stamp, StepStatus, topics,

@@ -1,0 +1,76 @@
+//! `fault-drill`: the fault drill of the vehicle's safety layer (see the library's docs).
+//! `scripts/fault-drill` builds and runs it.
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use fault_drill::DrillSetup;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    version,
+    about = "The fault drill of the vehicle's safety layer: kills, stalls, a second allocator, a camera with its clock stepped back and a rogue publisher, in one run of the vehicle mesh against the twin at 5 Hz."
+)]
+struct Args {
+    /// Random SIGKILLs across the vehicle services.
+    #[arg(long, default_value_t = 100)]
+    kills: u32,
+    /// Seed of the random choices and of the mesh.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Step one's episodes in simulation, before the vehicle run (the drill needs a policy, not a
+    /// good one).
+    #[arg(long, default_value_t = 10)]
+    sim_episodes: u32,
+    /// Directory holding scenario.toml, learning.toml and twin.toml.
+    #[arg(long, default_value = "config")]
+    config: PathBuf,
+    /// The mesh files of step one and of the vehicle.
+    #[arg(long, default_value = "config/sim-mesh.toml")]
+    sim_mesh: PathBuf,
+    #[arg(long, default_value = "config/vehicle.toml")]
+    vehicle_mesh: PathBuf,
+    /// Write the figures here as JSON (and the vehicle mesh's log beside it, as .log).
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    runtime::init_tracing();
+    match drill(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => cli::fail("fault-drill", err.as_ref()),
+    }
+}
+
+fn drill(args: &Args) -> Result<()> {
+    let canon = |p: &Path, what: &str| {
+        p.canonicalize()
+            .with_context(|| format!("{what} {}", p.display()))
+    };
+    let config_dir = canon(&args.config, "the config directory")?;
+    let scenario: config::Scenario = config::load(&config_dir.join("scenario.toml"))?;
+    let exe = std::env::current_exe()?;
+    let setup = DrillSetup {
+        bin_dir: exe.parent().context("the drill's directory")?.to_owned(),
+        sim_mesh: canon(&args.sim_mesh, "the mesh file")?,
+        vehicle_mesh: canon(&args.vehicle_mesh, "the mesh file")?,
+        config_dir,
+        kills: args.kills,
+        seed: args.seed,
+        sim_episodes: args.sim_episodes,
+        period_s: scenario.timing.sample_time_s,
+        keep_log: args.json.as_ref().map(|j| j.with_extension("log")),
+    };
+    let run = fault_drill::run(&setup)?;
+    cli::outln!("{}", serde_json::to_string_pretty(&run)?)?;
+    mesh_bench::report::publish(
+        "fault-drill",
+        &run,
+        &run.markdown(),
+        args.json.as_deref(),
+        None,
+    )
+}
