@@ -1,7 +1,7 @@
 //! The main job, `scripts/two-step-learning`, end to end on the service mesh: step one in simulation
 //! (every service a process), the twin's limit, the evaluations through the vehicle mesh (the camera's
-//! twin frame source, the allocator's twin thruster sink, the supervisor with `config/vehicle.toml`),
-//! step two with its evaluations and safety layer, and the report.
+//! twin frame source, the thruster driver's twin thruster sink, the supervisor with
+//! `config/vehicle.toml`), step two with its evaluations and safety layer, and the report.
 //!
 //! What this test shows is that the pieces fit and agree, not how well step two learns (that needs
 //! many seeds, and runs in one process: `services/lab/trainer/tests/step_two.rs` and the README's

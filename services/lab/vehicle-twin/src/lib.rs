@@ -15,7 +15,7 @@
 //!
 //! The `vehicle-twin` binary publishes the twin's frames on `cabletrack/twin/frame` and takes the
 //! setpoints from `cabletrack/twin/thrusters` (`adapters::twin`); the vehicle endpoint's camera and
-//! allocator reach them through their frame source and thruster sink.
+//! thruster driver reach them through their frame source and thruster sink.
 
 pub mod driver;
 pub mod latency;
