@@ -4,7 +4,7 @@
 use anyhow::{Context, Result};
 use clap::Parser;
 use fault_drill::DrillSetup;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -23,14 +23,8 @@ struct Args {
     /// good one).
     #[arg(long, default_value_t = 10)]
     sim_episodes: u32,
-    /// Directory holding scenario.toml, learning.toml and twin.toml.
-    #[arg(long, default_value = "config")]
-    config: PathBuf,
-    /// The mesh files of step one and of the vehicle.
-    #[arg(long, default_value = "config/sim-mesh.toml")]
-    sim_mesh: PathBuf,
-    #[arg(long, default_value = "config/vehicle.toml")]
-    vehicle_mesh: PathBuf,
+    #[command(flatten)]
+    files: mesh_bench::runs::VehicleFiles,
     /// Write the figures here as JSON (and the vehicle mesh's log beside it, as .log).
     #[arg(long)]
     json: Option<PathBuf>,
@@ -46,18 +40,14 @@ fn main() -> ExitCode {
 }
 
 fn drill(args: &Args) -> Result<()> {
-    let canon = |p: &Path, what: &str| {
-        p.canonicalize()
-            .with_context(|| format!("{what} {}", p.display()))
-    };
-    let config_dir = canon(&args.config, "the config directory")?;
-    let scenario: config::Scenario = config::load(&config_dir.join("scenario.toml"))?;
+    let files = args.files.canonical()?;
+    let scenario: config::Scenario = config::load(&files.config.join("scenario.toml"))?;
     let exe = std::env::current_exe()?;
     let setup = DrillSetup {
         bin_dir: exe.parent().context("the drill's directory")?.to_owned(),
-        sim_mesh: canon(&args.sim_mesh, "the mesh file")?,
-        vehicle_mesh: canon(&args.vehicle_mesh, "the mesh file")?,
-        config_dir,
+        sim_mesh: files.sim_mesh,
+        vehicle_mesh: files.vehicle_mesh,
+        config_dir: files.config,
         kills: args.kills,
         seed: args.seed,
         sim_episodes: args.sim_episodes,

@@ -66,14 +66,8 @@ struct VehicleArgs {
     /// Step one's episodes in simulation, before the vehicle run.
     #[arg(long, default_value_t = 100)]
     sim_episodes: u32,
-    /// Directory holding scenario.toml, learning.toml and twin.toml.
-    #[arg(long, default_value = "config")]
-    config: PathBuf,
-    /// The mesh files of step one and of the vehicle.
-    #[arg(long, default_value = "config/sim-mesh.toml")]
-    sim_mesh: PathBuf,
-    #[arg(long, default_value = "config/vehicle.toml")]
-    vehicle_mesh: PathBuf,
+    #[command(flatten)]
+    files: runs::VehicleFiles,
     /// Write the figures here as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -243,19 +237,15 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
     if !(args.speed.is_finite() && args.speed > 0.0) {
         anyhow::bail!("--speed {} must be a number > 0", args.speed);
     }
-    let canon = |p: &PathBuf, what: &str| {
-        p.canonicalize()
-            .with_context(|| format!("{what} {}", p.display()))
-    };
-    let config_dir = canon(&args.config, "the config directory")?;
-    let scenario: config::Scenario = config::load(&config_dir.join("scenario.toml"))?;
-    let twin: config::TwinParams = config::load(&config_dir.join("twin.toml"))?;
+    let files = args.files.canonical()?;
+    let scenario: config::Scenario = config::load(&files.config.join("scenario.toml"))?;
+    let twin: config::TwinParams = config::load(&files.config.join("twin.toml"))?;
     let exe = std::env::current_exe()?;
     let setup = VehicleSetup {
         bin_dir: exe.parent().context("the bench's directory")?.to_owned(),
-        sim_mesh: canon(&args.sim_mesh, "the mesh file")?,
-        vehicle_mesh: canon(&args.vehicle_mesh, "the mesh file")?,
-        config_dir,
+        sim_mesh: files.sim_mesh,
+        vehicle_mesh: files.vehicle_mesh,
+        config_dir: files.config,
         steps: args.steps,
         speed: args.speed,
         seed: args.seed,

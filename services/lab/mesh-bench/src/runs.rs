@@ -53,6 +53,36 @@ pub fn spawn(
         .with_context(|| format!("starting {}", program.display()))
 }
 
+/// Where a run of the vehicle mesh after a brief step one finds its configuration and its two mesh
+/// files: options of `mesh-bench vehicle` and of `fault-drill`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct VehicleFiles {
+    /// Directory holding scenario.toml, learning.toml and twin.toml.
+    #[arg(long, default_value = "config")]
+    pub config: PathBuf,
+    /// Step one's mesh file, in simulation.
+    #[arg(long, default_value = "config/sim-mesh.toml")]
+    pub sim_mesh: PathBuf,
+    /// The vehicle's mesh file.
+    #[arg(long, default_value = "config/vehicle.toml")]
+    pub vehicle_mesh: PathBuf,
+}
+
+impl VehicleFiles {
+    /// The three made absolute (the processes started run from elsewhere); a missing one is named.
+    pub fn canonical(&self) -> Result<VehicleFiles> {
+        let canon = |p: &Path, what: &str| {
+            p.canonicalize()
+                .with_context(|| format!("{what} {}", p.display()))
+        };
+        Ok(VehicleFiles {
+            config: canon(&self.config, "the config directory")?,
+            sim_mesh: canon(&self.sim_mesh, "the mesh file")?,
+            vehicle_mesh: canon(&self.vehicle_mesh, "the mesh file")?,
+        })
+    }
+}
+
 /// Runs step one in simulation, briefly and with ideal perception, in `ns`: the policy a vehicle run
 /// starts from (a policy, not a good one). Returns the directory of its checkpoints.
 pub fn brief_step_one(
