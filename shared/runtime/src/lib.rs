@@ -35,7 +35,7 @@ mod wait;
 pub use clock::VehicleClock;
 pub use namespace::Namespace;
 pub use node::{
-    CommonArgs, IoxSettings, MeshArgs, RESTARTS_ENV, Runtime, RuntimeError, create_node,
+    CommonArgs, IoxSettings, MeshArgs, RESTARTS_ENV, RunArgs, Runtime, RuntimeError, create_node,
     init_tracing, remove_dead_nodes, restarts, run, shm_files, shm_leftovers,
 };
 pub use steps::{Answer, StepInput};

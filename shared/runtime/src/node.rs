@@ -18,6 +18,14 @@ pub struct CommonArgs {
     /// Which mesh to join: `sim` (the simulator drives) or `vehicle` (the camera's clock drives).
     #[arg(long, default_value = "sim")]
     pub endpoint: Endpoint,
+    #[command(flatten)]
+    pub run: RunArgs,
+}
+
+/// What every process of a run shares: the configuration, the experiment's seed and the iceoryx2
+/// namespace (the supervisor takes them and passes them on to its services, [`RunArgs::env`]).
+#[derive(clap::Args, Clone, Debug, PartialEq, Eq)]
+pub struct RunArgs {
     /// The configuration directory: scenario.toml, learning.toml (and the twin's twin.toml).
     #[arg(long, default_value = "config", env = "CABLETRACK_CONFIG")]
     pub config: PathBuf,
@@ -26,6 +34,19 @@ pub struct CommonArgs {
     pub seed: u64,
     #[command(flatten)]
     pub iox: IoxSettings,
+}
+
+impl RunArgs {
+    /// The environment that gives a child process these (as [`CommonArgs`] reads it).
+    pub fn env(&self) -> [(&'static str, String); 4] {
+        let [prefix, root] = self.iox.env();
+        [
+            ("CABLETRACK_CONFIG", self.config.display().to_string()),
+            ("CABLETRACK_SEED", self.seed.to_string()),
+            prefix,
+            root,
+        ]
+    }
 }
 
 /// Where the iceoryx2 resources live. Processes with another prefix and root never meet: tests run
@@ -56,17 +77,13 @@ pub struct MeshArgs {
     /// The mesh file (e.g. config/sim-mesh.toml).
     #[arg(long)]
     pub mesh: PathBuf,
-    /// A placeholder's value in the mesh file, KEY=VALUE (repeatable).
+    /// A placeholder's value in the mesh file, KEY=VALUE (repeatable; `{seed}` is the seed's
+    /// unless set).
     #[arg(long = "set", value_parser = parse_key_value)]
     pub set: Vec<(String, String)>,
-    /// The configuration directory, passed to every service.
-    #[arg(long, default_value = "config", env = "CABLETRACK_CONFIG")]
-    pub config: PathBuf,
-    /// The experiment's seed, passed to every service (and as `{seed}`).
-    #[arg(long, default_value_t = 1, env = "CABLETRACK_SEED")]
-    pub seed: u64,
+    /// Passed on to every service.
     #[command(flatten)]
-    pub iox: IoxSettings,
+    pub run: RunArgs,
 }
 
 impl MeshArgs {
@@ -76,9 +93,11 @@ impl MeshArgs {
         MeshArgs {
             mesh: mesh.to_owned(),
             set: Vec::new(),
-            config: config.to_owned(),
-            seed,
-            iox: iox.clone(),
+            run: RunArgs {
+                config: config.to_owned(),
+                seed,
+                iox: iox.clone(),
+            },
         }
     }
 
@@ -95,13 +114,13 @@ impl MeshArgs {
             "--mesh".into(),
             self.mesh.display().to_string(),
             "--config".into(),
-            self.config.display().to_string(),
+            self.run.config.display().to_string(),
             "--seed".into(),
-            self.seed.to_string(),
+            self.run.seed.to_string(),
             "--iox-prefix".into(),
-            self.iox.prefix.clone(),
+            self.run.iox.prefix.clone(),
             "--iox-root".into(),
-            self.iox.root.clone(),
+            self.run.iox.root.clone(),
         ];
         for (k, v) in &self.set {
             args.extend(["--set".into(), format!("{k}={v}")]);
@@ -230,9 +249,9 @@ impl Runtime {
     /// Loads the configuration, removes the resources of dead processes, creates the node and
     /// installs the termination-signal handler.
     pub fn start(name: &'static str, args: &CommonArgs) -> Result<Runtime, RuntimeError> {
-        let scenario: Scenario = config::load(&args.config.join("scenario.toml"))?;
-        let learning: LearningParams = config::load(&args.config.join("learning.toml"))?;
-        let iox = args.iox.config()?;
+        let scenario: Scenario = config::load(&args.run.config.join("scenario.toml"))?;
+        let learning: LearningParams = config::load(&args.run.config.join("learning.toml"))?;
+        let iox = args.run.iox.config()?;
         let clock = crate::VehicleClock::from_env()?;
         if clock.offset_ns() != 0 {
             tracing::warn!(
@@ -250,8 +269,8 @@ impl Runtime {
         Ok(Runtime {
             name,
             endpoint: args.endpoint,
-            seed: args.seed,
-            config_dir: args.config.clone(),
+            seed: args.run.seed,
+            config_dir: args.run.config.clone(),
             scenario,
             learning,
             iox,

@@ -1,9 +1,10 @@
 //! `fault-drill`: the fault drill of the vehicle's safety layer (see the library's docs).
 //! `scripts/fault-drill` builds and runs it.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::Parser;
 use fault_drill::DrillSetup;
+use mesh_bench::runs::VehicleRunSetup;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -40,18 +41,11 @@ fn main() -> ExitCode {
 }
 
 fn drill(args: &Args) -> Result<()> {
-    let files = args.files.canonical()?;
-    let scenario: config::Scenario = config::load(&files.config.join("scenario.toml"))?;
-    let exe = std::env::current_exe()?;
+    let run = VehicleRunSetup::new(&args.files, args.seed, args.sim_episodes)?;
     let setup = DrillSetup {
-        bin_dir: exe.parent().context("the drill's directory")?.to_owned(),
-        sim_mesh: files.sim_mesh,
-        vehicle_mesh: files.vehicle_mesh,
-        config_dir: files.config,
+        period_s: run.scenario()?.timing.sample_time_s,
+        run,
         kills: args.kills,
-        seed: args.seed,
-        sim_episodes: args.sim_episodes,
-        period_s: scenario.timing.sample_time_s,
         keep_log: args.json.as_ref().map(|j| j.with_extension("log")),
     };
     let run = fault_drill::run(&setup)?;

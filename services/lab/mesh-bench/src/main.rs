@@ -237,19 +237,14 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
     if !(args.speed.is_finite() && args.speed > 0.0) {
         anyhow::bail!("--speed {} must be a number > 0", args.speed);
     }
-    let files = args.files.canonical()?;
-    let scenario: config::Scenario = config::load(&files.config.join("scenario.toml"))?;
-    let twin: config::TwinParams = config::load(&files.config.join("twin.toml"))?;
+    let run = runs::VehicleRunSetup::new(&args.files, args.seed, args.sim_episodes)?;
+    let scenario = run.scenario()?;
+    let twin: config::TwinParams = config::load(&run.files.config.join("twin.toml"))?;
     let exe = std::env::current_exe()?;
     let setup = VehicleSetup {
-        bin_dir: exe.parent().context("the bench's directory")?.to_owned(),
-        sim_mesh: files.sim_mesh,
-        vehicle_mesh: files.vehicle_mesh,
-        config_dir: files.config,
+        run,
         steps: args.steps,
         speed: args.speed,
-        seed: args.seed,
-        sim_episodes: args.sim_episodes,
         steps_per_trial: (twin.trials.duration_s / scenario.timing.sample_time_s).round() as u32,
         drop_probability: twin.frames.dropped.rate(),
         period_s: scenario.timing.sample_time_s,
@@ -271,7 +266,7 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
         };
         let ring = runs::ring(
             &exe,
-            &setup.config_dir,
+            &setup.run.files.config,
             &options,
             false,
             None,

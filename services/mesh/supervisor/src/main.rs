@@ -34,7 +34,7 @@ mod watch;
 )]
 struct Args {
     #[command(flatten)]
-    run: runtime::MeshArgs,
+    launch: runtime::MeshArgs,
     /// Where the service programs are (default: beside this one).
     #[arg(long)]
     bin_dir: Option<PathBuf>,
@@ -204,17 +204,17 @@ fn start(s: &mut Service, env: &[(&str, String)], ready_pipe: bool) -> Result<Ch
 }
 
 fn run(args: Args) -> Result<ExitCode> {
-    let mesh = MeshFile::load(&args.run.mesh)?;
+    let mesh = MeshFile::load(&args.launch.mesh)?;
     let endpoint: Endpoint = mesh
         .mesh
         .endpoint
         .parse()
         .map_err(anyhow::Error::msg)
-        .with_context(|| format!("{}: mesh.endpoint", args.run.mesh.display()))?;
-    let mut vars: BTreeMap<String, String> = args.run.set.iter().cloned().collect();
+        .with_context(|| format!("{}: mesh.endpoint", args.launch.mesh.display()))?;
+    let mut vars: BTreeMap<String, String> = args.launch.set.iter().cloned().collect();
     vars.entry("seed".into())
-        .or_insert_with(|| args.run.seed.to_string());
-    let commands = mesh.commands(&vars, &args.run.mesh)?;
+        .or_insert_with(|| args.launch.run.seed.to_string());
+    let commands = mesh.commands(&vars, &args.launch.mesh)?;
     let bin_dir = match &args.bin_dir {
         Some(d) => d.clone(),
         None => std::env::current_exe()?
@@ -222,36 +222,35 @@ fn run(args: Args) -> Result<ExitCode> {
             .context("the supervisor's directory")?
             .to_owned(),
     };
-    let config_dir = args
-        .run
-        .config
-        .canonicalize()
-        .with_context(|| format!("config directory {}", args.run.config.display()))?;
     // Dropped last: removes the run's own namespace whichever way the run ends.
     let own = args.own_namespace.then(|| runtime::Namespace::new("mesh"));
-    let iox_settings = match &own {
-        Some(ns) => {
-            cli::outln!(
-                "supervisor: this run's own namespace: --iox-prefix {} --iox-root {}",
-                ns.iox.prefix,
-                ns.iox.root
-            )?;
-            ns.iox.clone()
-        }
-        None => args.run.iox.clone(),
+    // What every service is given: the configuration (absolute: a service may run from elsewhere),
+    // the seed, the namespace.
+    let given = &args.launch.run;
+    let run = runtime::RunArgs {
+        config: given
+            .config
+            .canonicalize()
+            .with_context(|| format!("config directory {}", given.config.display()))?,
+        seed: given.seed,
+        iox: match &own {
+            Some(ns) => {
+                cli::outln!(
+                    "supervisor: this run's own namespace: --iox-prefix {} --iox-root {}",
+                    ns.iox.prefix,
+                    ns.iox.root
+                )?;
+                ns.iox.clone()
+            }
+            None => given.iox.clone(),
+        },
     };
-    let iox = iox_settings.config()?;
+    let iox = run.iox.config()?;
     let signals = Signals::install()?;
     let node = runtime::create_node("supervisor", &iox)?;
     let mut events = Events::open(&node, endpoint);
 
-    let [prefix_env, root_env] = iox_settings.env();
-    let env = [
-        ("CABLETRACK_CONFIG", config_dir.display().to_string()),
-        ("CABLETRACK_SEED", args.run.seed.to_string()),
-        prefix_env,
-        root_env,
-    ];
+    let env = run.env();
     let mut services = Vec::new();
     for cmd in commands {
         let program = bin_dir.join(&cmd.binary);
@@ -275,7 +274,7 @@ fn run(args: Args) -> Result<ExitCode> {
         services.iter().map(|s| s.cmd.name.clone()).collect(),
         signals.write.try_clone()?,
     )?;
-    tracing::info!(mesh = %args.run.mesh.display(), services = services.len(), "starting the mesh");
+    tracing::info!(mesh = %args.launch.mesh.display(), services = services.len(), "starting the mesh");
     let stop_when = mesh.mesh.stop_when.clone();
     let restart = mesh.restart.clone();
 
