@@ -102,7 +102,7 @@ impl StepAllocator {
         input: Input,
         cmd: DofCommand,
         now: Instant,
-        clock_ns: u64,
+        clock_ns: i64,
     ) -> Event {
         match self.once.check(&cmd.stamp, clock_ns) {
             Err(refusal) => return Event::Refused(refusal),
@@ -125,7 +125,7 @@ impl StepAllocator {
 
     /// Time passed: a step waiting longer than the deadline is allocated without its missing
     /// commands.
-    pub fn on_time(&mut self, now: Instant, clock_ns: u64) -> Event {
+    pub fn on_time(&mut self, now: Instant, clock_ns: i64) -> Event {
         let Some(partial) = self.gather.take_overdue(self.deadline, now) else {
             return Event::Idle;
         };
@@ -147,7 +147,7 @@ impl StepAllocator {
     }
 
     /// The setpoints of step `stamp`, computed once (its commands were judged on arrival).
-    fn answer(&mut self, stamp: Stamp, values: [Option<f64>; 3], clock_ns: u64) -> Event {
+    fn answer(&mut self, stamp: Stamp, values: [Option<f64>; 3], clock_ns: i64) -> Event {
         let (msg, fixes) = setpoints(&self.allocator, stamp, values);
         self.once.commit(&stamp, clock_ns, msg);
         Event::Send {
@@ -199,7 +199,7 @@ mod tests {
     }
 
     /// The vehicle clock in these tests: untimed stamps ignore it.
-    const NOW: u64 = 1;
+    const NOW: i64 = 1;
 
     fn cmd(seq: u64, value: f64) -> DofCommand {
         DofCommand {

@@ -115,7 +115,7 @@ fn main() -> ExitCode {
             // The wait ends up to a millisecond late (its timeout's resolution, the wake-up's
             // latency): setpoints with less than EARLY left count as stale now, so the thrusters stop
             // within the deadline, never after it.
-            if driver.on_time(clock.now_ns() + EARLY.as_nanos() as u64)?.is_some() {
+            if driver.on_time(clock.now_ns() + EARLY.as_nanos() as i64)?.is_some() {
                 tracing::warn!(cause = "deadline", deadline_ms = deadline.as_millis() as u64, "thrusters stopped: no fresh setpoints within the deadline");
             }
             // Woken again EARLY before the setpoints held go stale.

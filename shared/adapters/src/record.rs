@@ -264,6 +264,11 @@ pub fn read_record(path: &Path) -> Result<(Vec<String>, Vec<Record>), AdapterErr
                 .parse::<u64>()
                 .map_err(|e| bad(n, format!("{} `{}`: {e}", STAMP_COLUMNS[i], cols[i])))
         };
+        let signed = |i: usize| {
+            cols[i]
+                .parse::<i64>()
+                .map_err(|e| bad(n, format!("{} `{}`: {e}", STAMP_COLUMNS[i], cols[i])))
+        };
         let small = |i: usize| {
             u32::try_from(int(i)?).map_err(|e| bad(n, format!("{}: {e}", STAMP_COLUMNS[i])))
         };
@@ -285,7 +290,7 @@ pub fn read_record(path: &Path) -> Result<(Vec<String>, Vec<Record>), AdapterErr
         };
         let stamp = Stamp::new(int(0)?, int(2)?, small(4)?, small(5)?, status);
         records.push(Record {
-            stamp: stamp.timed(small(1)?, int(3)?),
+            stamp: stamp.timed(small(1)?, signed(3)?),
             written_unix_ns: int(7)?,
             stop,
             values,

@@ -19,18 +19,19 @@ pub use config::StepStatus;
     Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::Stamp/2")]
+#[type_name("cabletrack::Stamp/3")]
 pub struct Stamp {
     /// Sequence number of the control step, increasing within the producer's epoch.
     pub seq: u64,
     /// Time of the step (ns): simulated time on the sim endpoint; on the vehicle the frame source's
     /// clock (the twin matches the setpoints answering a frame by it).
     pub time_ns: u64,
-    /// The vehicle's monotonic clock (ns) when the step was taken (the camera read its frame); 0 on
-    /// the sim endpoint, whose lockstep runs on simulated time: an untimed stamp is never judged by
-    /// its age.
+    /// The vehicle clock (ns) when the step was taken (the camera read its frame): the monotonic
+    /// clock plus the producer's offset, signed, since a clock behind by more than the machine's
+    /// uptime reads below zero and must still show its pace. 0 on the sim endpoint, whose lockstep
+    /// runs on simulated time: an untimed stamp is never judged by its age.
     #[serde(default)]
-    pub clock_ns: u64,
+    pub clock_ns: i64,
     /// The session of the process that numbered `seq`, new at each start: a restarted producer's
     /// steps start a new epoch, which consumers accept instead of taking its `seq` for an old one.
     /// 0: no epoch.
@@ -64,7 +65,7 @@ impl Stamp {
     }
 
     /// The same step, taken at `clock_ns` on the vehicle clock in the producer's `epoch`.
-    pub fn timed(self, epoch: u32, clock_ns: u64) -> Self {
+    pub fn timed(self, epoch: u32, clock_ns: i64) -> Self {
         Stamp {
             epoch,
             clock_ns,
@@ -89,7 +90,7 @@ impl Stamp {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::VehicleState/2")]
+#[type_name("cabletrack::VehicleState/3")]
 pub struct VehicleStateMsg {
     pub stamp: Stamp,
     /// Position along the pool, m.
@@ -264,7 +265,7 @@ impl From<&CableObservationData> for model::CableObservation {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::CameraFrameHeader/2")]
+#[type_name("cabletrack::CameraFrameHeader/3")]
 pub struct CameraFrameHeader {
     pub stamp: Stamp,
     /// Pixels.
@@ -281,7 +282,7 @@ pub struct CameraFrameHeader {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::CableObservation/2")]
+#[type_name("cabletrack::CableObservation/3")]
 pub struct CableObservationMsg {
     pub stamp: Stamp,
     pub observation: CableObservationData,
@@ -298,7 +299,7 @@ impl CableObservationMsg {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::DofCommand/2")]
+#[type_name("cabletrack::DofCommand/3")]
 pub struct DofCommand {
     pub stamp: Stamp,
     /// In [-1, 1].
@@ -314,7 +315,7 @@ pub struct DofCommand {
 )]
 #[serde(into = "SetpointsForm", from = "SetpointsForm")]
 #[repr(C)]
-#[type_name("cabletrack::ThrusterSetpoints/2")]
+#[type_name("cabletrack::ThrusterSetpoints/3")]
 pub struct ThrusterSetpoints {
     pub stamp: Stamp,
     pub count: u32,
@@ -458,7 +459,7 @@ impl std::fmt::Display for StopCause {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::LearningStats/2")]
+#[type_name("cabletrack::LearningStats/3")]
 pub struct LearningStats {
     /// The stamp of the step that ended the episode.
     pub stamp: Stamp,

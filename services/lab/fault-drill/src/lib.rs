@@ -542,8 +542,8 @@ fn rogue(ns: &Namespace, seen: &Seen, period_s: f64) -> Result<(u64, Vec<u64>, V
     // Stamps: (bad stamp?, stamp)
     let mut stamps = |k: u64| -> Vec<(bool, Stamp)> {
         let now = clock.now_ns();
-        let period = (period_s * 1e9) as u64;
-        let base = |seq: u64, epoch: u32, clock_ns: u64, m: u64| {
+        let period = (period_s * 1e9) as i64;
+        let base = |seq: u64, epoch: u32, clock_ns: i64, m: u64| {
             Stamp::new(seq, m, live.episode, live.step, StepStatus::Running).timed(epoch, clock_ns)
         };
         let mut next = || {
