@@ -112,6 +112,10 @@ fn main() -> ExitCode {
                 .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
             Ok(())
         };
+        // Its inboxes are open: where it is an observer (the sim mesh, whose loop can run all its
+        // episodes in less time than a process takes to start), the loop starts now, so no report
+        // goes by before it listens.
+        rt.ready();
         rt.serve(&listeners, Timer::Timeout(Duration::from_secs(1)), |_| {
             if let (Some(observations), Some(out)) = (&trace_in, &mut trace_out) {
                 for o in observations.drain()? {
