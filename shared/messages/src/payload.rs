@@ -265,7 +265,7 @@ impl From<&CableObservationData> for model::CableObservation {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::CameraFrameHeader/3")]
+#[type_name("cabletrack::CameraFrameHeader/4")]
 pub struct CameraFrameHeader {
     pub stamp: Stamp,
     /// Pixels.
