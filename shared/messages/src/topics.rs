@@ -241,7 +241,9 @@ pub mod shore {
             history: 1,
             buffer: 4,
             recorder_buffer: 4,
-            // The operator, and the link's mirror on the vehicle.
+            // On the shore, the operator. On the vehicle, the link's mirror of the shore's
+            // publisher and the link's guard, which holds the other place so that no process of
+            // the vehicle can publish a command as if it came from the shore.
             max_publishers: 2,
             // The supervisor, the link, a test's probe.
             max_subscribers: 4,
