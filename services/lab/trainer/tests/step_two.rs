@@ -180,10 +180,10 @@ fn step_two_closes_the_gap_on_the_harsh_twin_and_never_leaves_a_seed_worse() {
     let verdict = summary(&results);
     for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
         // The published benchmark (12 seeds, ideal perception, `scripts/bench-step-two --eyes
-        // ideal`): median gap closed 65% for yaw (seeds 22% to 86%) and 100% for sway (99% to
-        // 131%). The margin is what the spread over those seeds needs for 8 of them: the lowest
-        // median any 8 of the 12 give is 54.6% for yaw and 99.9% for sway, so the bounds are 54%
-        // and 99% (65% and 100% less 11 and 1 points). Seeds 1 to 8 measured 69% and 99.9%.
+        // ideal`): median gap closed 63% for yaw (seeds 22% to 85%) and 100% for sway (99% to
+        // 127%). The margin is what the spread over those seeds needs for 8 of them: the lowest
+        // median any 8 of the 12 give is 54.3% for yaw and 100.0% for sway, so the bounds are 54%
+        // and 99% (63% and 100% less 9 and 1 points). Seeds 1 to 8 measured 66.9% and 100.0%.
         let bound = match dof {
             Dof::Yaw => 0.54,
             Dof::Sway => 0.99,
@@ -238,12 +238,12 @@ fn no_trial_loses_the_cable_on_the_harsh_twin_with_a_cross_current() {
     assert_every_limit_is_a_limit(&results);
     for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
         // The published benchmark (12 seeds, ideal perception): median gap closed 58% for yaw
-        // (seeds 0% to 90%) and 100% for sway (94% to 194%). The lowest median any 8 of those 12
-        // seeds give is 50.7% for yaw and 98.8% for sway, so the bounds are 50% and 98% (58% and
-        // 100% less 8 and 2 points). Seeds 1 to 8 measured 60.5% and 99.4%.
+        // (seeds 0% to 90%) and 100% for sway (95% to 255%). The lowest median any 8 of those 12
+        // seeds give is 50.4% for yaw and 99.3% for sway, so the bounds are 50% and 99% (58% and
+        // 100% less 8 and 1 points). Seeds 1 to 8 measured 59.5% and 99.3%.
         let bound = match dof {
             Dof::Yaw => 0.50,
-            Dof::Sway => 0.98,
+            Dof::Sway => 0.99,
         };
         assert!(
             d.median_gap_closed >= bound,
