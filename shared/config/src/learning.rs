@@ -41,7 +41,7 @@ impl<T> PerDof<T> {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Preset {
-    /// The values of `config/learning.toml` (learning rates chosen by `trainer sweep`, see README).
+    /// The values of `config/learning.toml` (learning rates chosen by `trainer sweep`, see docs/results.md).
     Default,
     /// The paper's values: NAC alpha = 0.01 for both DOFs.
     Paper,
@@ -164,7 +164,7 @@ pub struct NacParams {
 impl Default for NacParams {
     fn default() -> Self {
         NacParams {
-            // Chosen by `trainer sweep --algorithm nac --runs 100 --episodes 100` (README).
+            // Chosen by `trainer sweep --algorithm nac --runs 100 --episodes 100` (docs/results.md).
             alpha: PerDof::both(2.15),
             beta: 0.9,
             gamma: 0.95,
@@ -204,7 +204,7 @@ pub struct GpomdpParams {
 impl Default for GpomdpParams {
     fn default() -> Self {
         GpomdpParams {
-            // Chosen by `trainer sweep --algorithm gpomdp --runs 100 --episodes 100` (README).
+            // Chosen by `trainer sweep --algorithm gpomdp --runs 100 --episodes 100` (docs/results.md).
             alpha: PerDof {
                 sway: 0.01,
                 yaw: 0.0046,

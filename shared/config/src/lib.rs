@@ -10,12 +10,16 @@
 //! Loading is strict: an unknown key, a wrong type or an out-of-range value is an error that names the
 //! file and the key (see [`ConfigError`]). Missing keys take their defaults.
 
+mod autopilot;
 mod error;
 mod learning;
 mod scenario;
 mod twin;
 mod vision;
 
+pub use autopilot::{
+    ARDUSUB_PARAMS, ArduSubGeneration, AutopilotParams, ParamKind, ParamSpec, Since, param_value_ok,
+};
 pub use error::{ConfigError, Invalid};
 pub use learning::{
     EvaluationParams, GpomdpParams, LearningParams, MAX_ANGLE_LAG, MAX_GUARD_DELAY, NacParams,

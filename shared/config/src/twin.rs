@@ -22,6 +22,8 @@ pub struct TwinParams {
     pub latency: LatencyParams,
     /// The twin camera's image: its own effects, harsher than the simulator's `[render]`.
     pub render: RenderParams,
+    /// The stand-in ArduSub autopilot (used with `vehicle-twin --autopilot URL`).
+    pub autopilot: crate::AutopilotParams,
 }
 
 /// Trials, as on the real vehicle (paper section IV-B): a trial lasts `duration_s` of twin time or
@@ -221,6 +223,7 @@ impl Default for TwinParams {
             frames: FrameParams::default(),
             latency: LatencyParams::default(),
             render: TwinParams::default_render(),
+            autopilot: crate::AutopilotParams::default(),
         }
     }
 }
@@ -453,7 +456,8 @@ impl Validate for TwinParams {
             MAX_LATENCY_FRAMES as f64,
         )?;
 
-        self.render.validate(&join(key, "render"))
+        self.render.validate(&join(key, "render"))?;
+        self.autopilot.validate(&join(key, "autopilot"))
     }
 }
 
@@ -591,6 +595,21 @@ mod tests {
         let err = crate::parse::<TwinParams>("[render.noise]\nstd_dn = -2\n", Path::new("t.toml"))
             .unwrap_err();
         assert!(err.to_string().contains("render.noise.std_dn"), "{err}");
+    }
+
+    /// The BlueROV2's files load: its twin carries the autopilot, without the twin's own quadratic
+    /// damping (the identified model has it), and its scenario the four vectored thrusters.
+    #[test]
+    fn the_bluerov2_files_load() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/bluerov2");
+        let t: TwinParams = crate::load(&dir.join("twin.toml")).unwrap();
+        let s: crate::Scenario = crate::load(&dir.join("scenario.toml")).unwrap();
+        let _: crate::LearningParams = crate::load(&dir.join("learning.toml")).unwrap();
+        assert!(!t.damping.enabled);
+        assert_eq!(t.autopilot.value("MAV_GCS_SYSID"), Some(255.0));
+        assert_eq!(t.autopilot.value("FS_PILOT_TIMEOUT"), Some(3.0));
+        assert_eq!(s.thrusters.thruster.len(), 4);
+        assert!(s.model.yaw.beta > 0.0 && s.model.sway.beta > 0.0);
     }
 
     #[test]

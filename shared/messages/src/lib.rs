@@ -29,14 +29,15 @@
 //! QoS is fixed here, for every process: iceoryx2 takes a service's QoS from whichever process creates
 //! it first, so the services are only ever opened through [`ports`].
 
+pub mod json;
 pub mod payload;
 pub mod ports;
 pub mod topics;
 
 pub use payload::{
     CableObservationData, CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats,
-    Mission, MissionCommand, RecorderStatus, ServiceEvent, Stamp, Stamped, StepStatus, StopCause,
-    SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
+    Mission, MissionCommand, RecorderStatus, ServiceEvent, SetpointsForm, Stamp, Stamped,
+    StepStatus, StopCause, SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
 };
 pub use ports::{FrameInbox, FrameOutbox, FrameTap, Heartbeat, Inbox, Outbox, PortError, Tap};
 pub use topics::{Endpoint, Qos, Topic};

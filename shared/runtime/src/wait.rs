@@ -43,8 +43,29 @@ pub enum Stopped {
     Signal,
 }
 
+/// A file descriptor a service waits on beside its listeners (a socket); readable is an input.
+/// The service must drain it on every wake-up: it is level-triggered, like a listener.
+#[derive(Debug)]
+pub struct Fd(FileDescriptor);
+
+impl Fd {
+    /// Watches `source`'s descriptor (not owned: `source` must outlive the wait).
+    pub fn of(source: &impl std::os::fd::AsRawFd) -> Fd {
+        Fd(FileDescriptor::non_owning_new(source.as_raw_fd()).expect("an open file descriptor"))
+    }
+}
+
+impl FileDescriptorBased for Fd {
+    fn file_descriptor(&self) -> &FileDescriptor {
+        &self.0
+    }
+}
+
+impl SynchronousMultiplexing for Fd {}
+
 pub(crate) fn serve(
     inputs: &[&Listener<ipc::Service>],
+    fds: &[&Fd],
     timer: Timer,
     heartbeat: &Heartbeat,
     mut on_wake: impl FnMut(Wake) -> anyhow::Result<Flow>,
@@ -52,12 +73,19 @@ pub(crate) fn serve(
     let waitset = WaitSetBuilder::new()
         .create::<ipc::Service>()
         .map_err(|e| anyhow::anyhow!("cannot create a WaitSet: {e:?}"))?;
-    let mut guards = Vec::with_capacity(inputs.len());
+    let mut guards = Vec::with_capacity(inputs.len() + fds.len());
     for listener in inputs {
         guards.push(
             waitset
                 .attach_notification(*listener)
                 .map_err(|e| anyhow::anyhow!("cannot wait on a listener: {e:?}"))?,
+        );
+    }
+    for fd in fds {
+        guards.push(
+            waitset
+                .attach_notification(*fd)
+                .map_err(|e| anyhow::anyhow!("cannot wait on a file descriptor: {e:?}"))?,
         );
     }
     // An interval timer is an attachment of its own; a timeout is counted here, from the last call
@@ -80,7 +108,7 @@ pub(crate) fn serve(
     let mut pulse = Pulse::start(heartbeat)?;
     // A message sent before this process's listener existed announced itself to nobody (a topic's
     // history, a producer faster than our start-up): look at the inputs once before the first wait.
-    if !inputs.is_empty() && on_wake(Wake::Input)? == Flow::Stop {
+    if !(inputs.is_empty() && fds.is_empty()) && on_wake(Wake::Input)? == Flow::Stop {
         return Ok(Stopped::Done);
     }
     let mut last_wake = Instant::now();

@@ -22,12 +22,12 @@ use messages::{
     CableObservationMsg, CameraFrameHeader, DofCommand, FrameInbox, FrameOutbox, Inbox, Outbox,
     Stamp, StepStatus, ThrusterSetpoints, VehicleStateMsg, topics,
 };
+use records::latency::{HEADER, Sample, write_sample};
 use runtime::lockstep::Gather;
 use runtime::{Flow, Runtime, Stopped, Timer, Wake};
 use serde::{Deserialize, Serialize};
 use std::convert::Infallible;
 use std::time::Duration;
-use vehicle_twin::latency::{HEADER, Sample, write_sample};
 
 /// A node of the ring: which process of the mesh it stands in for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, Serialize, Deserialize)]

@@ -919,7 +919,7 @@ fn held_out_sets(seed: u64, n: u32) -> Vec<u64> {
 fn session_policies(path: &std::path::Path) -> Result<Vec<(String, PerDof<[f64; 2]>)>> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let run: monitor::RunRecord =
+    let run: records::RunRecord =
         serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
     let index = |trial: u32| -> Option<usize> {
         if run.episode_numbers.is_empty() {

@@ -16,26 +16,138 @@
 //! In both, a dropped frame is not published: nothing answers it and the twin moves on (in lockstep
 //! at once). Both stop after the requested number of trials.
 
+use crate::ardusub::{self, ArduSub, Vehicle, mixer};
 use crate::twin::{Shot, TrialEnd, Twin};
+use model::{PoseRate, VehicleState};
 use runtime::lockstep::{Advanced, Plant};
 use std::time::{Duration, Instant};
+
+/// How the twin takes its next frame: with an answer (or none), or driven by an autopilot.
+type Step<'a> = dyn FnMut(&mut Twin, Option<&[f64]>) -> (Shot, Option<TrialEnd>) + 'a;
 
 /// Advances once with `answer`, then past dropped frames (integrated without an answer).
 fn advance_to_visible(
     twin: &mut Twin,
     answer: Option<&[f64]>,
     ended: &mut Vec<TrialEnd>,
+    step: &mut Step,
 ) -> (Shot, u32) {
-    let (mut shot, end) = twin.advance(answer);
+    let (mut shot, end) = step(twin, answer);
     ended.extend(end);
     let mut passed = 0;
     while shot.dropped {
         passed += 1;
-        let (next, end) = twin.advance(None);
+        let (next, end) = step(twin, None);
         ended.extend(end);
         shot = next;
     }
     (shot, passed)
+}
+
+fn answered(twin: &mut Twin, answer: Option<&[f64]>) -> (Shot, Option<TrialEnd>) {
+    twin.advance(answer)
+}
+
+/// What the autopilot's AHRS reports of the vehicle's state.
+pub fn vehicle_of(state: &VehicleState, rate: &PoseRate) -> Vehicle {
+    Vehicle {
+        heading: state.pose.psi,
+        yaw_rate: state.velocity.r,
+        ground_speed: rate.x.hypot(rate.y),
+    }
+}
+
+/// The twin behind the stand-in ArduSub (`--autopilot`): its horizontal thrusters are the
+/// autopilot's motors 1..4, driven at every sub-step of the plant by the autopilot's attitude loop
+/// from the pilot input it holds (the newest MANUAL_CONTROL).
+pub struct Piloted {
+    pub twin: Twin,
+    pub autopilot: ArduSub,
+}
+
+impl Piloted {
+    /// Refuses a scenario whose thruster layout is not the vectored frame's.
+    pub fn new(twin: Twin, autopilot: ArduSub) -> Result<Piloted, String> {
+        let m = twin.plant().layout().matrix();
+        let columns: Vec<[f64; 3]> = (0..m.ncols())
+            .map(|j| [m[(0, j)], m[(1, j)], m[(2, j)]])
+            .collect();
+        mixer::check_layout(&columns)?;
+        Ok(Piloted { twin, autopilot })
+    }
+
+    /// The next frame, the period driven by `autopilot`.
+    pub fn step(twin: &mut Twin, autopilot: &mut ArduSub) -> (Shot, Option<TrialEnd>) {
+        twin.advance_driven(&mut |h, state, rate, out| {
+            let pwm = autopilot.control(h, vehicle_of(state, rate));
+            for (o, p) in out.iter_mut().zip(&pwm[..mixer::HORIZONTAL]) {
+                *o = mixer::setpoint(*p);
+            }
+        })
+    }
+
+    /// Whether a lockstep tag is the current frame's: its time in ms, as the stack's side sends it
+    /// (`frame_time_ns / 1_000_000` as u32).
+    pub fn tags(shot: &Shot, tag: &ardusub::StepTag) -> bool {
+        (shot.time_ns() / 1_000_000) as u32 == tag.frame_time_ms
+    }
+}
+
+/// The twin behind the autopilot as a plant of the lockstep protocol: a frame is answered by the
+/// step tag that follows its MANUAL_CONTROL (the autopilot holds that input; the answer itself
+/// carries nothing).
+impl Plant for Piloted {
+    type Step = Shot;
+    type End = TrialEnd;
+
+    fn answers(shot: &Shot, time_ns: u64) -> bool {
+        shot.time_ns() == time_ns
+    }
+
+    fn is_terminal(shot: &Shot) -> bool {
+        shot.status.is_terminal()
+    }
+
+    fn start(&mut self) -> Advanced<Self> {
+        let shot = self.twin.start();
+        let mut ended = Vec::new();
+        if !shot.dropped {
+            return Advanced {
+                step: shot,
+                passed: 0,
+                ended,
+            };
+        }
+        let autopilot = &mut self.autopilot;
+        let (step, passed) = advance_to_visible(&mut self.twin, None, &mut ended, &mut |t, _| {
+            Piloted::step(t, autopilot)
+        });
+        Advanced {
+            step,
+            passed,
+            ended,
+        }
+    }
+
+    fn advance(&mut self, answer: Option<&[f64]>) -> Advanced<Self> {
+        let mut ended = Vec::new();
+        let autopilot = &mut self.autopilot;
+        let (step, passed) = advance_to_visible(&mut self.twin, answer, &mut ended, &mut |t, _| {
+            Piloted::step(t, autopilot)
+        });
+        Advanced {
+            step,
+            passed,
+            ended,
+        }
+    }
+
+    fn finish(&mut self) -> Vec<TrialEnd> {
+        Piloted::step(&mut self.twin, &mut self.autopilot)
+            .1
+            .into_iter()
+            .collect()
+    }
 }
 
 /// What the clock-paced shell does next.
@@ -92,7 +204,7 @@ impl Plant for Twin {
                 ended,
             };
         }
-        let (step, passed) = advance_to_visible(self, None, &mut ended);
+        let (step, passed) = advance_to_visible(self, None, &mut ended, &mut answered);
         Advanced {
             step,
             passed,
@@ -102,7 +214,7 @@ impl Plant for Twin {
 
     fn advance(&mut self, answer: Option<&[f64]>) -> Advanced<Self> {
         let mut ended = Vec::new();
-        let (step, passed) = advance_to_visible(self, answer, &mut ended);
+        let (step, passed) = advance_to_visible(self, answer, &mut ended, &mut answered);
         Advanced {
             step,
             passed,
@@ -169,6 +281,12 @@ impl RealTime {
     /// The clock: starts the first trial when `listening` (a frame source is connected); then, at
     /// each due tick, advances one period.
     pub fn on_time(&mut self, now: Instant, listening: bool) -> Tick {
+        self.on_time_with(now, listening, &mut answered)
+    }
+
+    /// [`RealTime::on_time`] with the period integrated by `step` (the autopilot's: see
+    /// [`Piloted::step`]; it is given the newest setpoints, if any).
+    pub fn on_time_with(&mut self, now: Instant, listening: bool, step: &mut Step) -> Tick {
         if self.finished {
             return Tick::Idle;
         }
@@ -197,13 +315,13 @@ impl RealTime {
         let answer = self.newest.take();
         let answered = answer.is_some();
         if self.budget.last(&current) {
-            let (_, end) = self.twin.advance(None);
+            let (_, end) = step(&mut self.twin, None);
             self.finished = true;
             let mut ended = std::mem::take(&mut self.ended);
             ended.extend(end);
             return Tick::Finished { ended };
         }
-        let (shot, end) = self.twin.advance(answer.as_deref());
+        let (shot, end) = step(&mut self.twin, answer.as_deref());
         self.budget.done += end.is_some() as u32;
         self.ended.extend(end);
         if shot.dropped {
@@ -233,7 +351,7 @@ mod tests {
         Twin::new(&Scenario::default(), &t, seed, false).unwrap()
     }
 
-    fn published(r: Reaction<Twin>) -> Shot {
+    fn published<P: Plant<Step = Shot>>(r: Reaction<P>) -> Shot {
         match r {
             Reaction::Publish { next, .. } => next,
             other => panic!("expected a frame, got {other:?}"),
@@ -356,6 +474,52 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    fn bluerov2() -> Scenario {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../config/bluerov2/scenario.toml");
+        config::load(&path).unwrap()
+    }
+
+    /// Lockstep behind the autopilot: a frame is answered by the tag carrying its time in ms; the
+    /// period is driven by the autopilot's motors (forward stick: the vehicle moves forward; the
+    /// same twin disarmed stays still); a scenario without the vectored layout is refused.
+    #[test]
+    fn lockstep_behind_the_autopilot_steps_on_the_frames_tag() {
+        use crate::ardusub::{ArduSub, StepTag};
+        let t0 = Instant::now();
+        let mut params = TwinParams::ideal();
+        params.trials.duration_s = 20.0;
+        let run = |arm: bool| {
+            let twin = Twin::new(&bluerov2(), &params, 5, false).unwrap();
+            let mut autopilot = ArduSub::new(&params.autopilot, Vec::new(), t0);
+            if arm {
+                autopilot.arm_for_test(t0, 1000);
+            }
+            let piloted = Piloted::new(twin, autopilot).unwrap();
+            let (mut ls, first) = Lockstep::start(piloted, Limits::new(100 * MS, 2000 * MS), 0, t0);
+            let mut shot = published(first);
+            for _ in 0..10 {
+                let tag = StepTag {
+                    frame_time_ms: (shot.time_ns() / 1_000_000) as u32,
+                    step: shot.step as i32,
+                };
+                assert!(Piloted::tags(&shot, &tag));
+                let other = StepTag {
+                    frame_time_ms: tag.frame_time_ms + 200,
+                    ..tag
+                };
+                assert!(!Piloted::tags(&shot, &other), "another frame's tag");
+                shot = published(ls.on_answer(shot.time_ns(), &[], t0));
+            }
+            shot.state.velocity.u
+        };
+        let (moving, still) = (run(true), run(false));
+        assert!(moving > 0.1, "forward at {moving} m/s");
+        assert_eq!(still, 0.0);
+        let default = Twin::new(&Scenario::default(), &params, 5, false).unwrap();
+        assert!(Piloted::new(default, ArduSub::new(&params.autopilot, Vec::new(), t0)).is_err());
     }
 
     #[test]

@@ -17,6 +17,7 @@
 //! setpoints from `cabletrack/twin/thrusters` (`adapters::twin`); the vehicle endpoint's camera and
 //! allocator reach them through their frame source and thruster sink.
 
+pub mod ardusub;
 pub mod driver;
 pub mod latency;
 pub mod plant;

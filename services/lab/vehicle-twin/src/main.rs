@@ -2,12 +2,17 @@
 //! Publishes the twin camera's frames on `cabletrack/twin/frame`, takes the thruster setpoints from
 //! `cabletrack/twin/thrusters`, and runs trials as on the real vehicle. Real time by default
 //! (5 Hz), `--speed K` times faster, or `--lockstep` with the mesh (see `vehicle_twin::driver`).
+//! With `--autopilot URL` the thrusters are a stand-in ArduSub's motors, commanded over MAVLink
+//! (see `vehicle_twin::ardusub`; the loop is `autopilot.rs`).
+
+mod autopilot;
 
 use adapters::replay::{DiveWriter, ImageFormat};
 use adapters::twin::{TwinCameraPort, TwinThrusterPort};
 use anyhow::Context;
 use clap::Parser;
 use config::TwinParams;
+use records::latency;
 use runtime::lockstep::{Cause, Limits, Lockstep, Reaction};
 use runtime::{CommonArgs, Flow, Timer};
 use std::io::Write;
@@ -16,7 +21,7 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 use vehicle_twin::Twin;
 use vehicle_twin::driver::{RealTime, Tick};
-use vehicle_twin::latency::{self, LatencyMeter};
+use vehicle_twin::latency::LatencyMeter;
 use vehicle_twin::twin::{Shot, TrialEnd};
 
 #[derive(Parser)]
@@ -54,10 +59,19 @@ struct Args {
     /// frame's publication to the arrival of the setpoints answering it.
     #[arg(long, value_name = "FILE")]
     latency: Option<PathBuf>,
+    /// Stand in for a BlueROV2's ArduSub autopilot on this MAVLink port (`udpin:HOST:PORT`,
+    /// `udpout:HOST:PORT`): the thrusters are its motors, commanded by MANUAL_CONTROL; without it
+    /// the thrusters take setpoints from the twin's thruster topic.
+    #[arg(long, value_name = "URL")]
+    autopilot: Option<vehicle_twin::ardusub::Url>,
+    /// With --autopilot: inject a fault, `link-cut:AT:FOR` (nothing in or out) or `restart:AT:FOR`
+    /// (the autopilot silent, then back disarmed in MANUAL), seconds after the start; repeatable.
+    #[arg(long, value_name = "KIND:AT:FOR", requires = "autopilot")]
+    fault: Vec<vehicle_twin::ardusub::Fault>,
 }
 
 /// Times each published frame until its answer (`--latency`).
-struct Latency {
+pub(crate) struct Latency {
     meter: LatencyMeter,
     out: std::io::BufWriter<std::fs::File>,
     path: PathBuf,
@@ -104,7 +118,7 @@ impl Latency {
 }
 
 /// Publishes the twin's frames (and records them).
-struct Camera {
+pub(crate) struct Camera {
     port: TwinCameraPort,
     image: Vec<u8>,
     size: (u32, u32),
@@ -112,7 +126,12 @@ struct Camera {
 }
 
 impl Camera {
-    fn publish(
+    /// Whether a frame source is listening.
+    pub(crate) fn listening(&self) -> bool {
+        self.port.subscribers() > 0
+    }
+
+    pub(crate) fn publish(
         &mut self,
         twin: &mut Twin,
         shot: &Shot,
@@ -149,7 +168,9 @@ fn main() -> ExitCode {
         let twin = Twin::new(scenario, &params, rt.seed(), true)?;
         let size = (scenario.camera.width, scenario.camera.height);
         let len = size.0 as usize * size.1 as usize;
-        let thrusters = TwinThrusterPort::open(rt.node())?;
+        if args.autopilot.is_some() && args.latency.is_some() {
+            anyhow::bail!("--latency times thruster setpoints, which --autopilot does not take");
+        }
         let recorder = match &args.record {
             Some(dir) => Some(
                 DiveWriter::create(dir, size.0, size.1, true, ImageFormat::Pgm)
@@ -175,11 +196,24 @@ fn main() -> ExitCode {
         );
         let mut latency = args.latency.as_deref().map(Latency::create).transpose()?;
         let mut log = TrialLog::new(twin.steps_per_trial());
+        let limits = Limits::new(
+            Duration::from_millis(args.resend_ms),
+            Duration::from_millis(args.deadline_ms),
+        );
+        if let Some(url) = args.autopilot {
+            let setup = autopilot::Setup {
+                url,
+                faults: args.fault.clone(),
+                params: params.autopilot.clone(),
+                lockstep: args.lockstep.then_some(limits),
+                period,
+                trials: args.trials,
+            };
+            autopilot::run(rt, setup, twin, &mut camera, &mut log)?;
+            return finish(None, &mut camera);
+        }
+        let thrusters = TwinThrusterPort::open(rt.node())?;
         if args.lockstep {
-            let limits = Limits::new(
-                Duration::from_millis(args.resend_ms),
-                Duration::from_millis(args.deadline_ms),
-            );
             let (mut lockstep, first) = Lockstep::start(twin, limits, args.trials, Instant::now());
             let mut act = |lockstep: &mut Lockstep<Twin>,
                            latency: &mut Option<Latency>,
@@ -272,20 +306,25 @@ fn main() -> ExitCode {
                 Ok(Flow::Continue)
             })?;
         }
-        if let Some(l) = latency.take() {
-            l.finish()?;
-        }
-        if let Some(r) = camera.recorder.take() {
-            let dir = r.dir().to_owned();
-            let frames = r.finish()?;
-            tracing::info!(dir = %dir.display(), frames, "dive recorded");
-        }
-        Ok(())
+        finish(latency.take(), &mut camera)
     })
 }
 
+/// Writes what the run leaves behind: the latencies, the recorded dive.
+fn finish(latency: Option<Latency>, camera: &mut Camera) -> anyhow::Result<()> {
+    if let Some(l) = latency {
+        l.finish()?;
+    }
+    if let Some(r) = camera.recorder.take() {
+        let dir = r.dir().to_owned();
+        let frames = r.finish()?;
+        tracing::info!(dir = %dir.display(), frames, "dive recorded");
+    }
+    Ok(())
+}
+
 /// Logs trial ends and unanswered frames.
-struct TrialLog {
+pub(crate) struct TrialLog {
     steps_per_trial: u32,
     started: Instant,
     frames: u64,
@@ -300,7 +339,7 @@ impl TrialLog {
         }
     }
 
-    fn closed(&mut self, ended: &[TrialEnd], passed: u32, deadline: bool, shot: &Shot) {
+    pub(crate) fn closed(&mut self, ended: &[TrialEnd], passed: u32, deadline: bool, shot: &Shot) {
         self.frames += 1 + passed as u64;
         if deadline {
             tracing::warn!(

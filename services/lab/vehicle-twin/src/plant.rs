@@ -173,6 +173,11 @@ impl TwinPlant {
         &self.layout
     }
 
+    /// The longest integration sub-step (the model's).
+    pub fn max_substep_s(&self) -> f64 {
+        self.max_substep_s
+    }
+
     pub fn dynamics(&self) -> &Dynamics {
         &self.dynamics
     }

@@ -35,6 +35,10 @@ use rand::{Rng, SeedableRng};
 use std::collections::VecDeque;
 use vision::{Renderer, VisionError};
 
+/// An autopilot driving the thrusters within a period: given a sub-step's length and the vehicle's
+/// state and rate, it sets the setpoints for that sub-step.
+pub type Drive<'a> = dyn FnMut(f64, &VehicleState, &PoseRate, &mut [f64]) + 'a;
+
 /// One frame's answer on its way to the thrusters (`None`: no answer came).
 type InFlight = Option<[f64; MAX_THRUSTERS]>;
 
@@ -318,6 +322,41 @@ impl Twin {
     /// period; after a trial's last frame the next trial starts instead. Returns the new frame and,
     /// when a trial just closed, how it ended.
     pub fn advance(&mut self, answer: Option<&[f64]>) -> (Shot, Option<TrialEnd>) {
+        self.next(|twin| {
+            match twin.arrive(answer) {
+                Some(sp) => {
+                    twin.held.iter_mut().zip(sp).for_each(|(h, v)| *h = v);
+                    twin.since_answer_s = 0.0;
+                }
+                None => twin.since_answer_s += twin.dt,
+            }
+            if twin.since_answer_s >= twin.watchdog_s - 1e-9 {
+                twin.held.iter_mut().for_each(|h| *h = 0.0);
+            }
+            twin.plant.step(&twin.held, twin.dt);
+        })
+    }
+
+    /// The next frame, the thrusters driven within the period by an autopilot instead of by the
+    /// answer: every sub-step of the plant (`max_substep_s`), `drive` is given the sub-step's length
+    /// and the vehicle's state and rate, and sets the setpoints for it (the autopilot's attitude
+    /// loop). The trials run as with [`Twin::advance`].
+    pub fn advance_driven(&mut self, drive: &mut Drive) -> (Shot, Option<TrialEnd>) {
+        self.next(|twin| {
+            let n = (twin.dt / twin.plant.max_substep_s()).ceil().max(1.0);
+            let h = twin.dt / n;
+            for _ in 0..n as usize {
+                let (state, rate) = (*twin.plant.state(), twin.plant.pose_rate());
+                drive(h, &state, &rate, &mut twin.held);
+                twin.plant.step(&twin.held, h);
+            }
+            twin.since_answer_s = 0.0;
+        })
+    }
+
+    /// Takes the next frame after `actuate` has integrated one period (not called after a trial's
+    /// last frame: the next trial starts instead).
+    fn next(&mut self, actuate: impl FnOnce(&mut Twin)) -> (Shot, Option<TrialEnd>) {
         let Some(now) = self.current else {
             return (self.start(), None);
         };
@@ -333,17 +372,7 @@ impl Twin {
             };
             return (self.begin_trial(now.trial + 1, seq, time_s), Some(end));
         }
-        match self.arrive(answer) {
-            Some(sp) => {
-                self.held.iter_mut().zip(sp).for_each(|(h, v)| *h = v);
-                self.since_answer_s = 0.0;
-            }
-            None => self.since_answer_s += self.dt,
-        }
-        if self.since_answer_s >= self.watchdog_s - 1e-9 {
-            self.held.iter_mut().for_each(|h| *h = 0.0);
-        }
-        self.plant.step(&self.held, self.dt);
+        actuate(self);
         let step = now.step + 1;
         let state = *self.plant.state();
         let status = if self.eye.camera.view(&state.pose, &self.eye.cable).is_none() {
