@@ -292,10 +292,10 @@ impl Default for DampingParams {
 impl Default for ThrusterGap {
     fn default() -> Self {
         ThrusterGap {
-            // Off by default: the default twin's thrust is the identified one (config/twin-harsh.toml
-            // turns it on).
+            // On by default: the default twin is more responsive than identified (the
+            // identification underestimated its thrust); config/twin-mild.toml turns it off.
             gain: GainParams {
-                enabled: false,
+                enabled: true,
                 factor: 2.5,
             },
             lag: LagParams {
@@ -361,10 +361,11 @@ impl Default for MountParams {
 
 impl Default for LatencyParams {
     fn default() -> Self {
-        // Off by default: the default twin answers each frame within its period.
+        // On by default: the default twin's commands reach the thrusters one period after the frame
+        // they answer (config/twin-mild.toml: off; config/twin-harsh.toml: two periods).
         LatencyParams {
-            enabled: false,
-            frames: 2,
+            enabled: true,
+            frames: 1,
         }
     }
 }
@@ -486,13 +487,28 @@ mod tests {
     }
 
     #[test]
-    fn the_harsh_twin_is_the_default_with_a_responsive_vehicle_lag_and_latency() {
+    fn the_default_twin_is_responsive_and_late_and_the_mild_one_is_neither() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        let d = TwinParams::default();
+        assert_eq!((d.thrusters.gain.factor(), d.latency.periods()), (2.5, 1));
+        let mild: TwinParams = crate::load(&dir.join("twin-mild.toml")).unwrap();
+        let mut want = TwinParams::default();
+        want.thrusters.gain.enabled = false;
+        want.latency.enabled = false;
+        assert_eq!(mild, want);
+        assert_eq!(
+            (mild.thrusters.gain.factor(), mild.latency.periods()),
+            (1.0, 0)
+        );
+    }
+
+    #[test]
+    fn the_harsh_twin_is_the_default_with_a_second_frame_of_latency_and_a_faster_lag() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/twin-harsh.toml");
         let t: TwinParams = crate::load(&path).unwrap();
         let mut want = TwinParams::default();
-        want.thrusters.gain.enabled = true;
         want.thrusters.lag.time_constant_s = 0.4;
-        want.latency.enabled = true;
+        want.latency.frames = 2;
         assert_eq!(t, want);
         assert_eq!((t.thrusters.gain.factor(), t.latency.periods()), (2.5, 2));
     }

@@ -623,7 +623,11 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         let (now, late) = (thrusts(None), thrusts(Some(2)));
-        assert_eq!(TwinParams::default().latency.periods(), 0, "off by default");
+        assert_eq!(
+            TwinParams::ideal().latency.periods(),
+            0,
+            "off in the ideal twin"
+        );
         for k in 0..25 {
             let (step, thrust) = late[k];
             if step == 0 {
