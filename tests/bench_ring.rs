@@ -84,7 +84,7 @@ fn each_shape_passes_every_step_through_each_of_its_nodes() {
         every_hop_measured(run, shape, 60);
         // The steps' file, as the vehicle's latency file, holds the steps the summary was made of.
         let text = std::fs::read_to_string(dir.join("ring-1.csv")).expect("the run's latencies");
-        let steps = vehicle_twin::latency::read_latencies(&text).expect("a latency file");
+        let steps = records::latency::read_latencies(&text).expect("a latency file");
         assert_eq!(stats::Summary::of(&steps), run.step);
     }
 }

@@ -13,7 +13,7 @@
 
 use config::Eyes;
 use config::{Dof, PerDof, Scenario, TwinParams};
-use monitor::RunRecord;
+use records::RunRecord;
 use runtime::process::Spawn;
 use std::path::Path;
 use std::time::Duration;

@@ -11,7 +11,7 @@ use trainer::Perceiver;
 use trainer::world::World;
 
 /// What the monitor recorded of a run (`scripts/sim-mesh --json`).
-pub use monitor::RunRecord;
+pub use records::RunRecord;
 
 /// An observation seen by the test while the mesh ran.
 #[derive(Clone, Copy, Debug)]

@@ -1,14 +1,23 @@
 //! The payloads: `#[repr(C)]`, `ZeroCopySend`, with a stable, versioned type name (a process built
-//! from older code refuses to connect instead of misreading the bytes).
+//! from older code refuses to connect instead of misreading the bytes). Each also derives its JSON
+//! form and JSON Schema ([`crate::json`]): the doc comments of a payload's fields are its schema's
+//! descriptions, so they say what a reader of a record needs (units, frames, meanings of codes).
 
+use crate::json::{
+    EventKind, Flag, NumberOrNull, NumbersOrNull, StepStatusCode, StopCauseCode, Text,
+};
 use iceoryx2::prelude::*;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
 
 pub use config::StepStatus;
 
 /// The step a message belongs to. Copied unchanged from the step's first message (the simulator's
 /// vehicle state, the vehicle camera's frame) through every stage, so every consumer judges it alike
 /// (`runtime::lockstep::Screen`).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
 #[type_name("cabletrack::Stamp/2")]
 pub struct Stamp {
@@ -20,16 +29,22 @@ pub struct Stamp {
     /// The vehicle's monotonic clock (ns) when the step was taken (the camera read its frame); 0 on
     /// the sim endpoint, whose lockstep runs on simulated time: an untimed stamp is never judged by
     /// its age.
+    #[serde(default)]
     pub clock_ns: u64,
     /// The session of the process that numbered `seq`, new at each start: a restarted producer's
     /// steps start a new epoch, which consumers accept instead of taking its `seq` for an old one.
     /// 0: no epoch.
+    #[serde(default)]
     pub epoch: u32,
+    /// The episode (a trial on the vehicle), from 0.
     pub episode: u32,
     /// Step within the episode, 0 at the reset.
     pub step: u32,
-    /// A [`StepStatus`] as u8.
+    /// The episode's status at this step (`StepStatus` as u8): 0 running, 1 cable lost, 2 time
+    /// limit.
+    #[schemars(with = "StepStatusCode")]
     pub status: u8,
+    #[serde(skip)]
     pub _reserved: [u8; 3],
 }
 
@@ -68,20 +83,41 @@ impl Stamp {
     }
 }
 
-/// The vehicle's state (pool frame pose, body velocities) and the pose's rate (current included).
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+/// The vehicle's state and the pose's rate (current included). The pool frame: x along the pool, y
+/// to the right seen from above, psi from x towards y.
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
 #[type_name("cabletrack::VehicleState/2")]
 pub struct VehicleStateMsg {
     pub stamp: Stamp,
+    /// Position along the pool, m.
+    #[serde(with = "NumberOrNull")]
     pub x: f64,
+    /// Position across the pool, m.
+    #[serde(with = "NumberOrNull")]
     pub y: f64,
+    /// Heading, rad.
+    #[serde(with = "NumberOrNull")]
     pub psi: f64,
+    /// Surge velocity, m/s.
+    #[serde(with = "NumberOrNull")]
     pub u: f64,
+    /// Sway velocity, m/s.
+    #[serde(with = "NumberOrNull")]
     pub v: f64,
+    /// Yaw rate, rad/s.
+    #[serde(with = "NumberOrNull")]
     pub r: f64,
+    /// dx/dt, m/s (current included).
+    #[serde(with = "NumberOrNull")]
     pub x_rate: f64,
+    /// dy/dt, m/s (current included).
+    #[serde(with = "NumberOrNull")]
     pub y_rate: f64,
+    /// dpsi/dt, rad/s.
+    #[serde(with = "NumberOrNull")]
     pub psi_rate: f64,
 }
 
@@ -132,19 +168,38 @@ impl VehicleStateMsg {
 /// A cable observation's numbers as carried in messages (`model::CableObservation` in `#[repr(C)]`):
 /// perception's estimate in [`CableObservationMsg`], the geometric camera's truth in
 /// [`CameraFrameHeader`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
 #[type_name("cabletrack::CableObservationData/2")]
 pub struct CableObservationData {
     /// 1 when the cable was found (in view), 0 otherwise.
+    #[serde(with = "Flag")]
     pub found: u8,
+    #[serde(skip)]
     pub _reserved: [u8; 7],
+    /// The line's distance from the image centre along its normal, pixels.
+    #[serde(with = "NumberOrNull")]
     pub rho: f64,
+    /// Theta: the cable's angle from the image's vertical axis, rad, positive when its top leans
+    /// right.
+    #[serde(with = "NumberOrNull")]
     pub theta: f64,
+    /// The mid point of the line's border crossings, fraction of the width, positive right.
+    #[serde(with = "NumberOrNull")]
     pub x_g: f64,
+    /// The same, fraction of the height, positive down.
+    #[serde(with = "NumberOrNull")]
     pub y_g: f64,
+    /// dx_g/dt, 1/s.
+    #[serde(with = "NumberOrNull")]
     pub x_g_rate: f64,
+    /// dTheta/dt, rad/s.
+    #[serde(with = "NumberOrNull")]
     pub theta_rate: f64,
+    /// The detector's confidence in [0, 1] (1 for the geometric camera).
+    #[serde(with = "NumberOrNull")]
     pub confidence: f64,
 }
 
@@ -205,20 +260,41 @@ impl From<&CableObservationData> for model::CableObservation {
 
 /// The user header of a camera frame; the payload is the `width x height` 8-bit image, row by row
 /// (empty when the camera runs without images and only the ground truth is passed on).
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
-#[type_name("cabletrack::CameraFrameHeader/2")]
+#[type_name("cabletrack::CameraFrameHeader/3")]
 pub struct CameraFrameHeader {
     pub stamp: Stamp,
+    /// Pixels.
     pub width: u32,
+    /// Pixels.
     pub height: u32,
+    /// What is known of the image, bits: 1 damaged (a compressed frame decoded with data missing:
+    /// perception does not track on it).
+    pub flags: u32,
+    #[serde(skip)]
+    pub _reserved: [u8; 4],
     /// The geometric camera's line for this frame, where it is known (simulation); `found = 0`
     /// otherwise. Ideal perception passes it on; image perception is checked against it.
     pub truth: CableObservationData,
 }
 
-/// What perception found in a frame.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+impl CameraFrameHeader {
+    /// The image is not whole (a compressed video frame decoded with data missing): perception
+    /// does not track on it.
+    pub const DAMAGED: u32 = 1;
+
+    pub fn is_damaged(&self) -> bool {
+        self.flags & Self::DAMAGED != 0
+    }
+}
+
+/// What perception found in a frame: an estimate of the cable's line and its rates.
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
 #[type_name("cabletrack::CableObservation/2")]
 pub struct CableObservationMsg {
@@ -232,19 +308,26 @@ impl CableObservationMsg {
     }
 }
 
-/// One DOF's command: the normalised generalised force in [-1, 1].
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+/// One DOF's command: the normalised generalised force.
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
 #[type_name("cabletrack::DofCommand/2")]
 pub struct DofCommand {
     pub stamp: Stamp,
+    /// In [-1, 1].
+    #[serde(with = "NumberOrNull")]
     pub value: f64,
 }
 
 /// Thruster setpoints in [-1, 1], in the order of the configured layout: a step's answer, or a
 /// failsafe stop (`stop != 0`: every setpoint 0, stamped with the last step written, or an empty
-/// stamp before any; never an answer to a step).
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+/// stamp before any; never an answer to a step). Its JSON form is [`SetpointsForm`].
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
+#[serde(into = "SetpointsForm", from = "SetpointsForm")]
 #[repr(C)]
 #[type_name("cabletrack::ThrusterSetpoints/2")]
 pub struct ThrusterSetpoints {
@@ -258,6 +341,61 @@ pub struct ThrusterSetpoints {
     pub values: [f64; config::MAX_THRUSTERS],
     /// The factor applied to keep every setpoint within [-1, 1] (1 when nothing saturated).
     pub scale: f64,
+}
+
+/// The thruster allocator's setpoints, one per thruster of the layout (port, starboard, lateral):
+/// the JSON form of [`ThrusterSetpoints`], whose values are the used part of its fixed array.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct SetpointsForm {
+    pub stamp: Stamp,
+    /// In [-1, 1], one per thruster (`null`: not a number).
+    #[schemars(length(max = config::MAX_THRUSTERS))]
+    pub values: Vec<Option<f64>>,
+    /// Bit k set: DOF k's command (0 surge, 1 sway, 2 yaw) missed its deadline and counted as 0.
+    pub missing: u32,
+    /// The factor applied to keep every setpoint within [-1, 1].
+    #[serde(with = "NumberOrNull")]
+    pub scale: f64,
+    /// 0: the answer to a step; else a failsafe stop of the thrusters and its cause: 1 the driver
+    /// started, 2 deadline, 3 shutdown, 4 the allocator died, 255 unknown.
+    #[serde(default)]
+    #[schemars(with = "StopCauseCode")]
+    pub stop: u32,
+}
+
+impl From<ThrusterSetpoints> for SetpointsForm {
+    fn from(s: ThrusterSetpoints) -> Self {
+        SetpointsForm {
+            stamp: s.stamp,
+            values: s
+                .as_slice()
+                .iter()
+                .map(|v| v.is_finite().then_some(*v))
+                .collect(),
+            missing: s.missing,
+            scale: s.scale,
+            stop: s.stop,
+        }
+    }
+}
+
+impl From<SetpointsForm> for ThrusterSetpoints {
+    /// Values past the array's length are dropped.
+    fn from(f: SetpointsForm) -> Self {
+        let mut values = [0.0; config::MAX_THRUSTERS];
+        for (v, x) in values.iter_mut().zip(&f.values) {
+            *v = x.unwrap_or(f64::NAN);
+        }
+        ThrusterSetpoints {
+            stamp: f.stamp,
+            count: f.values.len().min(config::MAX_THRUSTERS) as u32,
+            missing: f.missing,
+            stop: f.stop,
+            _reserved: 0,
+            values,
+            scale: f.scale,
+        }
+    }
 }
 
 impl ThrusterSetpoints {
@@ -288,6 +426,14 @@ pub enum StopCause {
 }
 
 impl StopCause {
+    pub const ALL: [StopCause; 5] = [
+        StopCause::Start,
+        StopCause::Deadline,
+        StopCause::Shutdown,
+        StopCause::AllocatorDead,
+        StopCause::Unknown,
+    ];
+
     pub fn from_u32(v: u32) -> Self {
         match v {
             1 => StopCause::Start,
@@ -311,15 +457,7 @@ impl StopCause {
 
     /// The cause of a name written by [`StopCause::name`].
     pub fn parse(name: &str) -> Option<Self> {
-        [
-            StopCause::Start,
-            StopCause::Deadline,
-            StopCause::Shutdown,
-            StopCause::AllocatorDead,
-            StopCause::Unknown,
-        ]
-        .into_iter()
-        .find(|c| c.name() == name)
+        StopCause::ALL.into_iter().find(|c| c.name() == name)
     }
 }
 
@@ -329,37 +467,52 @@ impl std::fmt::Display for StopCause {
     }
 }
 
-/// A behaviour's report at the end of each episode.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+/// A behaviour's report at the end of each episode. Fields of step two are read as their
+/// defaults from records written before them.
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
 #[type_name("cabletrack::LearningStats/2")]
 pub struct LearningStats {
     /// The stamp of the step that ended the episode.
     pub stamp: Stamp,
     /// The episode's return (sum of the behaviour's rewards, the failure reward included).
+    #[serde(with = "NumberOrNull")]
     pub episode_return: f64,
     /// K after the episode (after a rollback it closed), for (position, rate).
+    #[serde(with = "NumbersOrNull::<2>")]
     pub gain: [f64; 2],
     /// Actor updates since the learner started.
     pub actor_updates: u64,
     /// Transitions in the episode.
     pub steps: u32,
     /// 1 when the episode ended with the cable lost.
+    #[serde(with = "Flag")]
     pub failed: u8,
     /// 1 while learning, 0 when only acting.
+    #[serde(with = "Flag")]
     pub learning: u8,
     /// 1 for an evaluation trial of step two (the policy acted without learning).
+    #[serde(default, with = "Flag")]
     pub evaluation: u8,
     /// 1 when this trial closed an evaluation that restored the best policy.
+    #[serde(default, with = "Flag")]
     pub rolled_back: u8,
-    /// Step two's safety layer so far: actor updates shortened by the trust region, refused by the
-    /// stability guard, and policies replaced by the best one.
+    /// Step two's safety layer so far: actor updates shortened by the trust region.
+    #[serde(default)]
     pub bounded: u64,
+    /// Actor updates refused by the stability guard so far.
+    #[serde(default)]
     pub refused: u64,
+    /// Policies replaced by the best one so far.
+    #[serde(default)]
     pub rollbacks: u64,
-    /// The mean return of the evaluation this trial closed (NaN when it closed none), and the best
-    /// evaluated so far (NaN before the first).
+    /// The mean return of the evaluation this trial closed (NaN when it closed none).
+    #[serde(default = "NumberOrNull::missing", with = "NumberOrNull")]
     pub evaluated: f64,
+    /// The best evaluated mean return so far (NaN before the first).
+    #[serde(default = "NumberOrNull::missing", with = "NumberOrNull")]
     pub best_evaluated: f64,
 }
 
@@ -378,6 +531,13 @@ pub enum ServiceEvent {
 }
 
 impl ServiceEvent {
+    pub const ALL: [ServiceEvent; 4] = [
+        ServiceEvent::Started,
+        ServiceEvent::Exited,
+        ServiceEvent::Restarting,
+        ServiceEvent::Stopped,
+    ];
+
     pub fn from_u8(v: u8) -> Option<ServiceEvent> {
         match v {
             1 => Some(ServiceEvent::Started),
@@ -401,9 +561,11 @@ impl ServiceEvent {
 /// The longest service name an event carries (longer names are cut at a character boundary).
 pub const SERVICE_NAME_LEN: usize = 32;
 
-/// One of the supervisor's events. It belongs to no control step, so it carries no [`Stamp`]: its
-/// time is the wall clock.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+/// One of the supervisor's events: what happened to a service of the mesh. It belongs to no control
+/// step, so it carries no [`Stamp`]: its time is the wall clock.
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
 #[type_name("cabletrack::SupervisorEvent/1")]
 pub struct SupervisorEvent {
@@ -411,8 +573,10 @@ pub struct SupervisorEvent {
     pub seq: u64,
     /// When it happened: nanoseconds since the Unix epoch.
     pub wall_time_ns: u64,
-    /// A [`ServiceEvent`] as u8.
+    /// A [`ServiceEvent`] as u8; in JSON its name: started, exited, restarting or stopped.
+    #[serde(with = "EventKind")]
     pub kind: u8,
+    #[serde(skip)]
     pub _reserved: [u8; 3],
     /// The service's process (for `Restarting`: the one that died).
     pub pid: u32,
@@ -422,24 +586,20 @@ pub struct SupervisorEvent {
     pub restarts: u32,
     /// `Restarting`: the delay before the restart (ms). `Stopped`: 1 if it had to be killed.
     pub detail: u32,
+    #[serde(skip)]
     pub _pad: u32,
     /// The service's name in the mesh file, UTF-8, NUL-padded.
+    #[serde(with = "Text::<SERVICE_NAME_LEN>")]
     pub service: [u8; SERVICE_NAME_LEN],
 }
 
 impl SupervisorEvent {
     pub fn new(seq: u64, wall_time_ns: u64, kind: ServiceEvent, service: &str) -> Self {
-        let mut name = [0u8; SERVICE_NAME_LEN];
-        let mut end = service.len().min(SERVICE_NAME_LEN);
-        while !service.is_char_boundary(end) {
-            end -= 1;
-        }
-        name[..end].copy_from_slice(&service.as_bytes()[..end]);
         SupervisorEvent {
             seq,
             wall_time_ns,
             kind: kind as u8,
-            service: name,
+            service: Text::to_bytes(service),
             ..Default::default()
         }
     }
@@ -451,17 +611,14 @@ impl SupervisorEvent {
 
     /// The service's name (invalid UTF-8 is replaced).
     pub fn service(&self) -> String {
-        let end = self
-            .service
-            .iter()
-            .position(|&b| b == 0)
-            .unwrap_or(SERVICE_NAME_LEN);
-        String::from_utf8_lossy(&self.service[..end]).into_owned()
+        Text::of(&self.service).into_owned()
     }
 }
 
 /// The flight recorder's report after each flush of its file.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
 #[type_name("cabletrack::RecorderStatus/1")]
 pub struct RecorderStatus {
@@ -482,7 +639,164 @@ pub struct RecorderStatus {
     pub repeats: u64,
     /// The part being written (0: the file named on the command line).
     pub part: u32,
+    #[serde(skip)]
     pub _reserved: u32,
+}
+
+/// What the vehicle's autopilot says of itself, from its HEARTBEAT and SYS_STATUS, published by the
+/// thruster driver that pilots it over MAVLink (the ArduSub thruster sink, `shared/ardusub`): once
+/// per autopilot heartbeat, and when the heartbeat is lost. Autopilot telemetry belongs to no
+/// control step, so it carries no [`Stamp`]: its time is the vehicle clock (`runtime::clock`,
+/// CLOCK_MONOTONIC, the clock of [`Stamp::clock_ns`]) when the message arrived, so it lines up
+/// with the steps; the autopilot's own clock where the message has one.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::AutopilotState/1")]
+pub struct AutopilotState {
+    /// Reports count from 1 in one driver's run.
+    pub seq: u64,
+    /// The vehicle clock (ns) when the autopilot's message arrived (or, for a lost heartbeat, when
+    /// the loss was found).
+    pub clock_ns: u64,
+    /// MAVLink frames refused so far on the link (broken checksums, garbage, truncated frames).
+    pub frames_refused: u64,
+    /// The battery as the autopilot reports it (SYS_STATUS): volts and amperes, NaN when unknown.
+    pub battery_v: f64,
+    pub battery_a: f64,
+    /// The pilot gain the driver scales its commands by (ArduSub's `PilotGain`).
+    pub pilot_gain: f64,
+    /// The autopilot's flight mode (HEARTBEAT `custom_mode`; ArduSub: 19 MANUAL, 2 ALT_HOLD,
+    /// 0 STABILIZE), valid while `heartbeat` is 1.
+    pub mode: u32,
+    /// 1 while the autopilot's heartbeat comes; 0 before the first and once it is lost, when
+    /// `armed` and `mode` are unknown.
+    pub heartbeat: u8,
+    /// 1 when the autopilot's heartbeat says armed (motors enabled).
+    pub armed: u8,
+    /// The autopilot's MAV_STATE (3 standby, 4 active, 5 critical, 6 emergency).
+    pub system_status: u8,
+    /// The battery's remaining charge in percent, -1 when unknown.
+    pub battery_remaining: i8,
+}
+
+/// The autopilot's attitude (MAVLink ATTITUDE): Euler angles in the NED frame, the project's
+/// conventions (yaw from north towards east, as psi from x towards y). Time as in
+/// [`AutopilotState`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::AutopilotAttitude/1")]
+pub struct AutopilotAttitude {
+    pub seq: u64,
+    pub clock_ns: u64,
+    /// Radians, and radians per second.
+    pub roll: f64,
+    pub pitch: f64,
+    pub yaw: f64,
+    pub roll_rate: f64,
+    pub pitch_rate: f64,
+    pub yaw_rate: f64,
+    /// The autopilot's clock: milliseconds since it booted.
+    pub boot_ms: u32,
+    pub _reserved: u32,
+}
+
+/// The vehicle's depth and heading as the autopilot reports them (MAVLink VFR_HUD: ArduSub puts
+/// its altitude relative to the surface in `alt`, negative below it). Time as in
+/// [`AutopilotState`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::AutopilotDepth/1")]
+pub struct AutopilotDepth {
+    pub seq: u64,
+    pub clock_ns: u64,
+    /// Metres below the surface (VFR_HUD `alt` negated).
+    pub depth_m: f64,
+    /// Degrees from north, 0 to 360.
+    pub heading_deg: f64,
+    /// Metres per second, positive up (VFR_HUD `climb`).
+    pub climb_m_s: f64,
+    /// The vertical thrust the autopilot gives, in percent.
+    pub throttle_pct: f64,
+}
+
+/// The most output channels a [`ServoOutputs`] carries.
+pub const SERVO_CHANNELS: usize = 16;
+
+/// The autopilot's outputs to the thrusters' ESCs (MAVLink SERVO_OUTPUT_RAW): pulse widths in
+/// microseconds, 1500 at rest on a BlueROV2. Time as in [`AutopilotState`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::ServoOutputs/1")]
+pub struct ServoOutputs {
+    pub seq: u64,
+    pub clock_ns: u64,
+    /// The autopilot's clock (microseconds since boot, wrapping).
+    pub time_us: u32,
+    /// The output port: channels 1 to 16 are port 0, 17 to 32 port 1.
+    pub port: u8,
+    /// Channels carried (8, or 16 with MAVLink 2's extension).
+    pub count: u8,
+    pub _reserved: [u8; 2],
+    /// Channel k+1's pulse width (us); 0 where the autopilot sends none.
+    pub pwm_us: [u16; SERVO_CHANNELS],
+}
+
+/// The longest text a [`StatusText`] carries (MAVLink STATUSTEXT's).
+pub const STATUS_TEXT_LEN: usize = 50;
+
+/// A text the autopilot sends its ground stations (MAVLink STATUSTEXT: "PreArm: ...", "Lost manual
+/// control", ...), as it comes. Time as in [`AutopilotState`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::StatusText/1")]
+pub struct StatusText {
+    pub seq: u64,
+    pub clock_ns: u64,
+    /// MAV_SEVERITY: 0 emergency ... 4 warning, 5 notice, 6 info, 7 debug.
+    pub severity: u8,
+    pub _reserved: [u8; 7],
+    /// UTF-8, NUL-padded.
+    pub text: [u8; STATUS_TEXT_LEN],
+    pub _pad: [u8; 6],
+}
+
+impl Default for StatusText {
+    fn default() -> Self {
+        StatusText {
+            seq: 0,
+            clock_ns: 0,
+            severity: 0,
+            _reserved: [0; 7],
+            text: [0; STATUS_TEXT_LEN],
+            _pad: [0; 6],
+        }
+    }
+}
+
+impl StatusText {
+    /// A text of `severity`; a longer one is cut at a character boundary.
+    pub fn new(severity: u8, text: &str) -> Self {
+        let mut out = StatusText {
+            severity,
+            ..Default::default()
+        };
+        let mut end = text.len().min(STATUS_TEXT_LEN);
+        while !text.is_char_boundary(end) {
+            end -= 1;
+        }
+        out.text[..end].copy_from_slice(&text.as_bytes()[..end]);
+        out
+    }
+
+    /// The text (invalid UTF-8 is replaced).
+    pub fn text(&self) -> String {
+        let end = self
+            .text
+            .iter()
+            .position(|&b| b == 0)
+            .unwrap_or(STATUS_TEXT_LEN);
+        String::from_utf8_lossy(&self.text[..end]).into_owned()
+    }
 }
 
 /// What the shore asks of the vehicle's mesh (see [`crate::topics::shore::MISSION`]).
@@ -550,6 +864,23 @@ stamped!(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn autopilot_payloads_have_no_hidden_padding_and_texts_are_cut_at_a_boundary() {
+        use std::mem::size_of;
+        assert_eq!(size_of::<AutopilotState>(), 56);
+        assert_eq!(size_of::<AutopilotAttitude>(), 72);
+        assert_eq!(size_of::<AutopilotDepth>(), 48);
+        assert_eq!(size_of::<ServoOutputs>(), 56);
+        assert_eq!(size_of::<StatusText>(), 80);
+        assert_eq!(
+            StatusText::new(4, "Lost manual control").text(),
+            "Lost manual control"
+        );
+        let long = format!("{}é", "a".repeat(49));
+        assert_eq!(StatusText::new(6, &long).text(), "a".repeat(49));
+        assert_eq!(StatusText::new(6, &long).severity, 6);
+    }
 
     #[test]
     fn an_event_carries_the_service_name_cut_at_a_character_boundary() {

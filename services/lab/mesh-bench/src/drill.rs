@@ -332,7 +332,7 @@ pub fn run(setup: &DrillSetup) -> Result<DrillReport> {
     report.leftover_shm = ns.leftovers().len();
     report.trials_lost = match std::fs::read_to_string(&record) {
         Ok(text) => {
-            let r: monitor::RunRecord = serde_json::from_str(&text)
+            let r: records::RunRecord = serde_json::from_str(&text)
                 .with_context(|| format!("{} is not a run record", record.display()))?;
             let mut numbers = r.episode_numbers.clone();
             numbers.sort_unstable();

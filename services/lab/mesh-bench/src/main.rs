@@ -369,8 +369,7 @@ fn spread(files: &[PathBuf]) -> Result<()> {
 /// Prints the latency table of several vehicle runs' `--latencies` files.
 fn latencies(files: &[PathBuf]) -> Result<()> {
     let runs = read_runs(files, |f, text| {
-        vehicle_twin::latency::read_latencies(text)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", f.display()))
+        records::latency::read_latencies(text).map_err(|e| anyhow::anyhow!("{}: {e}", f.display()))
     })?;
     cli::outln!("{}", mesh_bench::vehicle::latency_table(&runs))?;
     Ok(())

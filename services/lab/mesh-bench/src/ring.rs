@@ -22,12 +22,12 @@ use messages::{
     CableObservationMsg, CameraFrameHeader, DofCommand, FrameInbox, FrameOutbox, Inbox, Outbox,
     Stamp, StepStatus, ThrusterSetpoints, VehicleStateMsg, topics,
 };
+use records::latency::{HEADER, Sample, write_sample};
 use runtime::lockstep::Gather;
 use runtime::{Flow, Runtime, Stopped, Timer, Wake};
 use serde::{Deserialize, Serialize};
 use std::convert::Infallible;
 use std::time::Duration;
-use vehicle_twin::latency::{HEADER, Sample, write_sample};
 
 /// A node of the ring: which process of the mesh it stands in for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, Serialize, Deserialize)]
@@ -253,7 +253,7 @@ pub fn run(rt: &Runtime, role: Role, options: &RingOptions) -> Result<NodeReport
                     stamp: restamp(s.stamp),
                     width,
                     height,
-                    truth: Default::default(),
+                    ..Default::default()
                 };
                 // The port loans and zero-fills the frame in shared memory; nothing is rendered.
                 frames.send_with(header, len, |_| Ok::<(), Infallible>(()))??;
@@ -409,7 +409,7 @@ impl SimulatorPorts {
                     stamp: state.stamp,
                     width: *width,
                     height: *height,
-                    truth: Default::default(),
+                    ..Default::default()
                 };
                 let len = (*width * *height) as usize;
                 camera.send_with(header, len, |_| Ok::<(), Infallible>(()))??;

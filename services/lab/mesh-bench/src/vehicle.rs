@@ -221,7 +221,7 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     if let Some(keep) = &setup.keep_latencies {
         std::fs::write(keep, &text).with_context(|| format!("writing {}", keep.display()))?;
     }
-    let latencies = vehicle_twin::latency::read_latencies(&text)
+    let latencies = records::latency::read_latencies(&text)
         .map_err(|e| anyhow::anyhow!("{}: {e}", latency_file.display()))?;
     // The steady window: every service up, from 10 s in (start-up and the first trial's set-up out),
     // to the last reading with every process still there (they stop one by one).

@@ -136,6 +136,7 @@ impl Shot {
             step: self.step,
             status: self.status,
             truth: Some(self.truth),
+            damaged: false,
         }
     }
 }

@@ -12,7 +12,8 @@ pub mod status;
 
 use config::PerDof;
 use messages::LearningStats;
-use serde::{Deserialize, Serialize};
+use records::{EvaluationRecord, RunRecord, SafetyCounts};
+use serde::Serialize;
 use std::collections::BTreeMap;
 
 /// One finished episode, as both behaviours reported it.
@@ -35,113 +36,6 @@ pub struct EpisodeRecord {
     pub rolled_back: PerDof<bool>,
     /// The best evaluated return so far (NaN before the first evaluation).
     pub best: PerDof<f64>,
-}
-
-/// A behaviour's safety layer, counted (step two): actor updates shortened by the trust region or
-/// refused by the stability guard, and rollbacks to the best policy.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct SafetyCounts {
-    pub bounded: u64,
-    pub refused: u64,
-    pub rollbacks: u64,
-}
-
-impl From<&LearningStats> for SafetyCounts {
-    fn from(s: &LearningStats) -> Self {
-        SafetyCounts {
-            bounded: s.bounded,
-            refused: s.refused,
-            rollbacks: s.rollbacks,
-        }
-    }
-}
-
-/// One evaluation of step two: the trial that closed it, the learning trials before it, and each
-/// DOF's evaluated return (`None`: that behaviour did not judge it, e.g. it was restarted during
-/// the evaluation).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct EvaluationRecord {
-    pub trial: u32,
-    pub learning_trials: u32,
-    pub evaluated: PerDof<Option<f64>>,
-    /// The evaluated return of the policy in force after the evaluation: the evaluated one, or the
-    /// best one where it was restored.
-    pub in_force: PerDof<Option<f64>>,
-    /// Which behaviours restored their best policy after it.
-    pub rolled_back: PerDof<bool>,
-}
-
-/// The JSON record of a mesh run (`scripts/sim-mesh --json FILE`).
-#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
-pub struct RunRecord {
-    pub episodes: usize,
-    pub yaw: Vec<f64>,
-    pub sway: Vec<f64>,
-    pub steps: u64,
-    pub wall_s: f64,
-    pub lost: Vec<bool>,
-    /// Each episode's transitions (episodes differ in length: a lost cable ends one early, a twin
-    /// trial is 90 s against a simulated episode's 40 s); compare returns per step across them.
-    #[serde(default)]
-    pub episode_steps: Vec<u32>,
-    /// Step two: which episodes were evaluation trials (the policy acted without learning).
-    #[serde(default)]
-    pub evaluation: Vec<bool>,
-    /// Step two: each evaluation's mean returns, in order.
-    #[serde(default)]
-    pub evaluations: Vec<EvaluationRecord>,
-    /// Each policy's gain after each episode.
-    #[serde(default)]
-    pub yaw_gain: Vec<[f64; 2]>,
-    #[serde(default)]
-    pub sway_gain: Vec<[f64; 2]>,
-    /// Step two: each behaviour's safety counts at the end of the run.
-    #[serde(default)]
-    pub safety: PerDof<SafetyCounts>,
-    /// Each record's episode number (a report lost on the way leaves a gap).
-    #[serde(default)]
-    pub episode_numbers: Vec<u32>,
-}
-
-impl RunRecord {
-    /// The mean return per step of episodes `range` (yaw, sway); `None` if they have no steps.
-    pub fn per_step(&self, range: std::ops::Range<usize>) -> Option<(f64, f64)> {
-        let steps: u64 = self
-            .episode_steps
-            .get(range.clone())?
-            .iter()
-            .map(|&s| s as u64)
-            .sum();
-        (steps > 0).then(|| {
-            let sum = |v: &[f64]| v[range.clone()].iter().sum::<f64>() / steps as f64;
-            (sum(&self.yaw), sum(&self.sway))
-        })
-    }
-}
-
-/// One observation of a trace (the state-trace figures: Theta and x_g over a trial).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
-pub struct TracePoint {
-    pub episode: u32,
-    pub step: u32,
-    /// Time since the episode started (s).
-    pub time_s: f64,
-    pub found: bool,
-    pub x_g: f64,
-    pub theta: f64,
-}
-
-impl TracePoint {
-    pub fn new(o: &messages::CableObservationMsg, sample_time_s: f64) -> Self {
-        TracePoint {
-            episode: o.stamp.episode,
-            step: o.stamp.step,
-            time_s: o.stamp.step as f64 * sample_time_s,
-            found: o.observation.found != 0,
-            x_g: o.observation.x_g,
-            theta: o.observation.theta,
-        }
-    }
 }
 
 /// The lowest return a behaviour's report can carry, per transition it counts: every transition at

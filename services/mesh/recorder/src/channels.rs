@@ -1,7 +1,25 @@
-//! The channels of a flight record: one per topic of the endpoint (the camera's topic gives three:
-//! its header as JSON, its image, and perception's estimate drawn over it), each with its schema.
+//! The channels of a flight record, in one table: one channel per topic of the endpoint (the camera's
+//! topic gives three: its header as JSON, its image, and perception's estimate drawn over it).
+//!
+//! A JSON channel records a payload of the messages contract in the JSON form the payload derives,
+//! with the JSON Schema it derives (`messages::json`): the schema is named after the payload's type
+//! name (`cabletrack::VehicleState/2` gives `cabletrack.VehicleState`), its descriptions are the
+//! payload's doc comments. Adding a payload to the record takes its derives (`Serialize`,
+//! `Deserialize`, `JsonSchema`) and one line in the table below; the line gives the kind of
+//! [`Recorded`] message, the channel, its topic in the record, the contract's topic it records, how
+//! a message is kept once (`each_step`: a message of every control step, whose missed steps count
+//! as holes; `stamped`: stamped, not every step; `by_seq`: no stamp, numbered by its `seq`), and
+//! whether the recorder subscribes to it as it is (`tap`) or writes it itself (`own`: the frames'
+//! headers come with their images, the status is the recorder's own).
 
-use crate::json;
+use crate::FlightRecorder;
+use crate::image::Image;
+use config::Dof;
+use messages::topics;
+use messages::{
+    CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats, PortError, RecorderStatus,
+    Stamp, SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
+};
 use serde_json::Value;
 
 /// A DOF that has a command topic.
@@ -18,94 +36,259 @@ impl CommandDof {
     /// Its topic in the messages contract.
     pub fn topic(self) -> messages::Topic<messages::DofCommand> {
         match self {
-            CommandDof::Surge => messages::topics::SURGE_COMMAND,
-            CommandDof::Sway => messages::topics::SWAY_COMMAND,
-            CommandDof::Yaw => messages::topics::YAW_COMMAND,
+            CommandDof::Surge => topics::SURGE_COMMAND,
+            CommandDof::Sway => topics::SWAY_COMMAND,
+            CommandDof::Yaw => topics::YAW_COMMAND,
         }
     }
 
     pub fn channel(self) -> Channel {
-        match self {
-            CommandDof::Surge => Channel::SurgeCommand,
-            CommandDof::Sway => Channel::SwayCommand,
-            CommandDof::Yaw => Channel::YawCommand,
-        }
+        Recorded::Command(self, DofCommand::default()).channel()
     }
 }
 
 /// How a channel's messages are encoded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Encoding {
-    /// JSON with a JSON Schema (`crate::json`).
+    /// JSON with a JSON Schema (`messages::json`).
     Json,
     /// A Foxglove well-known schema, protobuf-encoded (the schema is its FileDescriptorSet).
     Protobuf,
 }
 
-/// A channel of the flight record.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum Channel {
+/// How a recorded message is kept once (`crate::keep`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Key {
+    /// By its step: a message of every control step, whose missed steps are holes.
+    EachStep(Stamp),
+    /// By its step: stamped, but not every step has one (the episode reports).
+    Stamped(Stamp),
+    /// By its own sequence number (no stamp: the supervisor's events, the recorder's status).
+    Seq(u64),
+}
+
+/// The recorder's subscription of one channel's topic.
+pub trait Drain {
+    /// Writes every message waiting in the subscription into `rec`.
+    fn drain(&self, rec: &mut FlightRecorder) -> Result<(), PortError>;
+}
+
+struct Plain<P: messages::ports::Payload> {
+    tap: messages::Tap<P>,
+    wrap: fn(P) -> Recorded,
+}
+
+impl<P: messages::ports::Payload> Drain for Plain<P> {
+    fn drain(&self, rec: &mut FlightRecorder) -> Result<(), PortError> {
+        while let Some(m) = self.tap.receive()? {
+            rec.log(&(self.wrap)(m));
+        }
+        Ok(())
+    }
+}
+
+macro_rules! key {
+    (each_step, $m:expr) => {
+        Key::EachStep($m.stamp)
+    };
+    (stamped, $m:expr) => {
+        Key::Stamped($m.stamp)
+    };
+    (by_seq, $m:expr) => {
+        Key::Seq($m.seq)
+    };
+}
+
+macro_rules! per_step {
+    (each_step) => {
+        true
+    };
+    (stamped) => {
+        false
+    };
+    (by_seq) => {
+        false
+    };
+}
+
+macro_rules! tap {
+    (tap, $rt:ident, $source:expr, $wrap:expr) => {
+        Some(Box::new(Plain {
+            tap: $rt.tap(&$source)?,
+            wrap: $wrap,
+        }) as Box<dyn Drain>)
+    };
+    (own, $rt:ident, $source:expr, $wrap:expr) => {
+        None
+    };
+}
+
+macro_rules! flight_record {
+    ($(
+        $(#[$kind_doc:meta])*
+        $kind:ident($payload:ty) $(by $key_type:ty)?, $keep:ident {$(
+            $(#[$doc:meta])*
+            $channel:ident $(($key:path))? = $topic:literal <- $source:expr, $sub:ident;
+        )+}
+    )+) => {
+        /// A channel of the flight record.
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+        pub enum Channel {
+            $($($(#[$doc])* $channel,)+)+
+            /// The camera's images, `foxglove.RawImage` `mono8`, decimated by `--frame-every`.
+            Image,
+            /// Perception's estimate drawn over the image (`foxglove.ImageAnnotations`), for the
+            /// frames whose image is recorded.
+            Annotation,
+        }
+
+        /// A recorded message, as the mesh sent it.
+        #[derive(Clone, Debug, PartialEq)]
+        pub enum Recorded {
+            $($(#[$kind_doc])* $kind($($key_type,)? $payload),)+
+            Image(Image),
+            /// Perception's overlay (not decoded: it is drawn from the observation).
+            Overlay,
+        }
+
+        impl Channel {
+            pub const ALL: [Channel; [$($(stringify!($channel),)+)+ "Image", "Annotation"].len()] =
+                [$($(Channel::$channel,)+)+ Channel::Image, Channel::Annotation];
+
+            /// The channel's topic in the MCAP file and the live view: the contract's topic name
+            /// (`messages::topics`) with a leading slash; the camera's header and perception's
+            /// overlay below their topics.
+            pub fn topic(self) -> &'static str {
+                match self {
+                    $($(Channel::$channel => $topic,)+)+
+                    Channel::Image => "/camera_frame",
+                    Channel::Annotation => "/cable_observation/overlay",
+                }
+            }
+
+            /// The iceoryx2 topic (below `cabletrack/<endpoint>/`) the channel records.
+            pub fn source(self) -> &'static str {
+                match self {
+                    $($(Channel::$channel => $source.name,)+)+
+                    Channel::Image => topics::CAMERA_FRAME.name,
+                    Channel::Annotation => topics::CABLE_OBSERVATION.name,
+                }
+            }
+
+            /// The schema's name: the payload's type name for a JSON channel.
+            pub fn schema_name(self) -> String {
+                match self {
+                    $($(Channel::$channel)|+ => messages::json::schema_name::<$payload>(),)+
+                    Channel::Image => "foxglove.RawImage".into(),
+                    Channel::Annotation => "foxglove.ImageAnnotations".into(),
+                }
+            }
+
+            /// The JSON Schema of a JSON channel, derived from its payload.
+            pub fn json_schema(self) -> Option<Value> {
+                match self {
+                    $($(Channel::$channel)|+ => Some(messages::json::schema::<$payload>(
+                        &self.schema_name(),
+                    )),)+
+                    Channel::Image | Channel::Annotation => None,
+                }
+            }
+
+            /// A message of this channel belongs to each control step: a step it missed while
+            /// other channels had it is a hole.
+            pub fn per_step(self) -> bool {
+                match self {
+                    $($(Channel::$channel)|+ => per_step!($keep),)+
+                    Channel::Image | Channel::Annotation => false,
+                }
+            }
+        }
+
+        impl Recorded {
+            /// The channel the message is recorded on.
+            pub fn channel(&self) -> Channel {
+                match self {
+                    $($(Recorded::$kind($($key,)? _) => Channel::$channel,)+)+
+                    Recorded::Image(_) => Channel::Image,
+                    Recorded::Overlay => Channel::Annotation,
+                }
+            }
+
+            /// How the message is kept once; `None` for an image or an overlay (written with their
+            /// frame, `FlightRecorder::frame`).
+            pub fn key(&self) -> Option<Key> {
+                match self {
+                    $(Recorded::$kind(.., m) => Some(key!($keep, m)),)+
+                    Recorded::Image(_) | Recorded::Overlay => None,
+                }
+            }
+
+            /// Writes the message's JSON form; `false` for an image or an overlay.
+            pub(crate) fn write_json(&self, out: &mut Vec<u8>) -> bool {
+                match self {
+                    $(Recorded::$kind(.., m) => serde_json::to_writer(out, m).is_ok(),)+
+                    Recorded::Image(_) | Recorded::Overlay => false,
+                }
+            }
+
+            /// A message of JSON channel `channel` from its bytes.
+            pub(crate) fn from_json(channel: Channel, data: &[u8]) -> Result<Recorded, String> {
+                let e = |e: serde_json::Error| e.to_string();
+                Ok(match channel {
+                    $($(Channel::$channel => Recorded::$kind(
+                        $($key,)? serde_json::from_slice(data).map_err(e)?
+                    ),)+)+
+                    Channel::Image | Channel::Annotation => {
+                        return Err(format!("{} is not a JSON channel", channel.topic()));
+                    }
+                })
+            }
+        }
+
+        /// The recorder's subscriptions of the channels it records as they are (`tap` in the
+        /// table), in the table's order.
+        pub fn taps(rt: &runtime::Runtime) -> Result<Vec<Box<dyn Drain>>, PortError> {
+            let taps: [Option<Box<dyn Drain>>; Channel::ALL.len() - 2] = [
+                $($(tap!($sub, rt, $source, |m| Recorded::$kind($($key,)? m)),)+)+
+            ];
+            Ok(taps.into_iter().flatten().collect())
+        }
+    };
+}
+
+flight_record! {
     /// The vehicle's state (the sim endpoint's simulator; nobody publishes it on the vehicle).
-    VehicleState,
+    State(VehicleStateMsg), each_step {
+        VehicleState = "/vehicle_state" <- topics::VEHICLE_STATE, tap;
+    }
     /// Each camera frame's header: its step and the true line where known.
-    FrameHeader,
-    /// The camera's images, `foxglove.RawImage` `mono8`, decimated by `--frame-every`.
-    Image,
+    FrameHeader(CameraFrameHeader), each_step {
+        FrameHeader = "/camera_frame/header" <- topics::CAMERA_FRAME, own;
+    }
     /// Perception's estimate.
-    Observation,
-    /// Perception's estimate drawn over the image (`foxglove.ImageAnnotations`), for the frames whose
-    /// image is recorded.
-    Annotation,
-    SurgeCommand,
-    SwayCommand,
-    YawCommand,
-    Setpoints,
-    SwayLearning,
-    YawLearning,
+    Observation(CableObservationMsg), each_step {
+        Observation = "/cable_observation" <- topics::CABLE_OBSERVATION, tap;
+    }
+    Command(DofCommand) by CommandDof, each_step {
+        SurgeCommand(CommandDof::Surge) = "/command/surge" <- topics::SURGE_COMMAND, tap;
+        SwayCommand(CommandDof::Sway) = "/command/sway" <- topics::SWAY_COMMAND, tap;
+        YawCommand(CommandDof::Yaw) = "/command/yaw" <- topics::YAW_COMMAND, tap;
+    }
+    Setpoints(ThrusterSetpoints), each_step {
+        Setpoints = "/thruster_setpoints" <- topics::THRUSTER_SETPOINTS, tap;
+    }
+    /// A behaviour's report at the end of an episode.
+    Learning(LearningStats) by Dof, stamped {
+        SwayLearning(Dof::Sway) = "/learning/sway" <- topics::SWAY_LEARNING, tap;
+        YawLearning(Dof::Yaw) = "/learning/yaw" <- topics::YAW_LEARNING, tap;
+    }
     /// The supervisor's events.
-    Events,
+    Event(SupervisorEvent), by_seq { Events = "/supervisor/events" <- topics::SUPERVISOR_EVENTS, tap; }
     /// The recorder's own progress.
-    Status,
+    Status(RecorderStatus), by_seq { Status = "/recorder/status" <- topics::RECORDER_STATUS, own; }
 }
 
 impl Channel {
-    pub const ALL: [Channel; 13] = [
-        Channel::VehicleState,
-        Channel::FrameHeader,
-        Channel::Image,
-        Channel::Observation,
-        Channel::Annotation,
-        Channel::SurgeCommand,
-        Channel::SwayCommand,
-        Channel::YawCommand,
-        Channel::Setpoints,
-        Channel::SwayLearning,
-        Channel::YawLearning,
-        Channel::Events,
-        Channel::Status,
-    ];
-
-    /// The channel's topic in the MCAP file and the live view: the contract's topic name
-    /// (`messages::topics`) with a leading slash; the camera's header and perception's overlay below
-    /// their topics.
-    pub fn topic(self) -> &'static str {
-        match self {
-            Channel::VehicleState => "/vehicle_state",
-            Channel::FrameHeader => "/camera_frame/header",
-            Channel::Image => "/camera_frame",
-            Channel::Observation => "/cable_observation",
-            Channel::Annotation => "/cable_observation/overlay",
-            Channel::SurgeCommand => "/command/surge",
-            Channel::SwayCommand => "/command/sway",
-            Channel::YawCommand => "/command/yaw",
-            Channel::Setpoints => "/thruster_setpoints",
-            Channel::SwayLearning => "/learning/sway",
-            Channel::YawLearning => "/learning/yaw",
-            Channel::Events => "/supervisor/events",
-            Channel::Status => "/recorder/status",
-        }
-    }
-
     pub fn from_topic(topic: &str) -> Option<Channel> {
         Channel::ALL.into_iter().find(|c| c.topic() == topic)
     }
@@ -115,73 +298,6 @@ impl Channel {
             Channel::Image | Channel::Annotation => Encoding::Protobuf,
             _ => Encoding::Json,
         }
-    }
-
-    /// The schema's name.
-    pub fn schema_name(self) -> &'static str {
-        match self {
-            Channel::VehicleState => "cabletrack.VehicleState",
-            Channel::FrameHeader => "cabletrack.CameraFrameHeader",
-            Channel::Image => "foxglove.RawImage",
-            Channel::Observation => "cabletrack.CableObservation",
-            Channel::Annotation => "foxglove.ImageAnnotations",
-            Channel::SurgeCommand | Channel::SwayCommand | Channel::YawCommand => {
-                "cabletrack.DofCommand"
-            }
-            Channel::Setpoints => "cabletrack.ThrusterSetpoints",
-            Channel::SwayLearning | Channel::YawLearning => "cabletrack.LearningStats",
-            Channel::Events => "cabletrack.SupervisorEvent",
-            Channel::Status => "cabletrack.RecorderStatus",
-        }
-    }
-
-    /// The JSON Schema of a JSON channel.
-    pub fn json_schema(self) -> Option<Value> {
-        Some(match self {
-            Channel::VehicleState => json::vehicle_state_schema(),
-            Channel::FrameHeader => json::frame_header_schema(),
-            Channel::Observation => json::observation_msg_schema(),
-            Channel::SurgeCommand | Channel::SwayCommand | Channel::YawCommand => {
-                json::command_schema()
-            }
-            Channel::Setpoints => json::setpoints_schema(),
-            Channel::SwayLearning | Channel::YawLearning => json::learning_schema(),
-            Channel::Events => json::event_schema(),
-            Channel::Status => json::status_schema(),
-            Channel::Image | Channel::Annotation => return None,
-        })
-    }
-
-    /// The iceoryx2 topic (below `cabletrack/<endpoint>/`) the channel records.
-    pub fn source(self) -> &'static str {
-        use messages::topics as t;
-        match self {
-            Channel::VehicleState => t::VEHICLE_STATE.name,
-            Channel::FrameHeader | Channel::Image => t::CAMERA_FRAME.name,
-            Channel::Observation | Channel::Annotation => t::CABLE_OBSERVATION.name,
-            Channel::SurgeCommand => t::SURGE_COMMAND.name,
-            Channel::SwayCommand => t::SWAY_COMMAND.name,
-            Channel::YawCommand => t::YAW_COMMAND.name,
-            Channel::Setpoints => t::THRUSTER_SETPOINTS.name,
-            Channel::SwayLearning => t::SWAY_LEARNING.name,
-            Channel::YawLearning => t::YAW_LEARNING.name,
-            Channel::Events => t::SUPERVISOR_EVENTS.name,
-            Channel::Status => t::RECORDER_STATUS.name,
-        }
-    }
-
-    /// A message of this channel belongs to one control step (it carries a `Stamp`).
-    pub fn per_step(self) -> bool {
-        matches!(
-            self,
-            Channel::VehicleState
-                | Channel::FrameHeader
-                | Channel::Observation
-                | Channel::SurgeCommand
-                | Channel::SwayCommand
-                | Channel::YawCommand
-                | Channel::Setpoints
-        )
     }
 }
 
@@ -215,5 +331,48 @@ mod tests {
         for d in CommandDof::ALL {
             assert_eq!(d.channel().source(), d.topic().name);
         }
+        assert_eq!(
+            Channel::SwayLearning.source(),
+            topics::learning(Dof::Sway).name
+        );
+    }
+
+    /// Each kind of message is on its own channel, and reads back from its JSON as it was.
+    #[test]
+    fn a_message_knows_its_channel_and_reads_back_from_its_json() {
+        let stamp = Stamp::new(3, 4, 0, 1, messages::StepStatus::Running);
+        let items = [
+            Recorded::Command(CommandDof::Sway, DofCommand { stamp, value: 0.5 }),
+            Recorded::Learning(
+                Dof::Yaw,
+                LearningStats {
+                    stamp,
+                    evaluated: -1.0,
+                    best_evaluated: -1.0,
+                    ..Default::default()
+                },
+            ),
+            Recorded::Event(SupervisorEvent::new(
+                2,
+                9,
+                messages::ServiceEvent::Started,
+                "camera",
+            )),
+        ];
+        let want = [
+            (Channel::SwayCommand, Key::EachStep(stamp)),
+            (Channel::YawLearning, Key::Stamped(stamp)),
+            (Channel::Events, Key::Seq(2)),
+        ];
+        for (item, (channel, key)) in items.iter().zip(want) {
+            assert_eq!((item.channel(), item.key()), (channel, Some(key)));
+            let mut json = Vec::new();
+            assert!(item.write_json(&mut json));
+            assert_eq!(Recorded::from_json(channel, &json).as_ref(), Ok(item));
+        }
+        assert!(Channel::Setpoints.per_step() && !Channel::YawLearning.per_step());
+        assert!(!Channel::Events.per_step() && !Channel::Image.per_step());
+        assert!(Recorded::from_json(Channel::Image, b"{}").is_err());
+        assert!(Recorded::from_json(Channel::SwayCommand, b"{\"stamp\":1}").is_err());
     }
 }

@@ -4,8 +4,9 @@
 //! without a viewer.
 
 use crate::CommandDof;
+use crate::Recorded;
 use crate::image::estimate_overlay;
-use crate::read::{ReadError, Reader, Recorded};
+use crate::read::{ReadError, Reader};
 use messages::CableObservationMsg;
 use plot::{Figure, LineChart, Panel, Picture, Series};
 use std::collections::BTreeMap;

@@ -61,15 +61,20 @@ pub struct Keeper {
     frame_every: u32,
     last_seq: BTreeMap<Channel, u64>,
     /// Recent steps: which per-step channels recorded each.
-    seen: BTreeMap<u64, u16>,
+    seen: BTreeMap<u64, u64>,
     imaged: VecDeque<u64>,
     /// The newest step recorded: (seq, time).
     newest: Option<(u64, u64)>,
     counts: BTreeMap<Channel, Counts>,
 }
 
-fn bit(c: Channel) -> u16 {
-    1 << Channel::ALL.iter().position(|x| *x == c).unwrap_or(15)
+const _: () = assert!(
+    Channel::ALL.len() <= 64,
+    "a step's channels are bits of a u64"
+);
+
+fn bit(c: Channel) -> u64 {
+    1 << Channel::ALL.iter().position(|x| *x == c).unwrap_or(63)
 }
 
 impl Keeper {
@@ -165,7 +170,7 @@ impl Keeper {
         }
     }
 
-    fn settle(&mut self, seq: u64, mask: u16) {
+    fn settle(&mut self, seq: u64, mask: u64) {
         let missed: Vec<Channel> = Channel::ALL
             .into_iter()
             .filter(|c| c.per_step() && mask & bit(*c) == 0)

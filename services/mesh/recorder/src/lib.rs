@@ -2,9 +2,10 @@
 //! viewers open (Foxglove, Lichtblick), the same channels served live, and the reader of such
 //! records (replay, the report, the tests).
 //!
-//! - [`channels`]: one channel per topic, each with its schema: the camera's images as
-//!   `foxglove.RawImage` (`mono8`), perception's estimate also drawn over them as
-//!   `foxglove.ImageAnnotations`, everything else as JSON with a JSON Schema ([`json`]).
+//! - [`channels`]: the table of channels, one per topic, each with its schema: the camera's images
+//!   as `foxglove.RawImage` (`mono8`), perception's estimate also drawn over them as
+//!   `foxglove.ImageAnnotations`, every other payload as the JSON form and JSON Schema it derives
+//!   (`messages::json`).
 //! - [`keep`]: the pure core: each step's message once, at the stamp's time, frames decimated,
 //!   holes counted.
 //! - [`writer`]: the file: chunked, zstd, flushed each second, rotated by size into parts
@@ -21,14 +22,13 @@
 pub mod channels;
 pub mod figure;
 pub mod image;
-pub mod json;
 pub mod keep;
 pub mod read;
 pub mod writer;
 
-pub use channels::{Channel, CommandDof};
+pub use channels::{Channel, CommandDof, Drain, Key, Recorded, taps};
 pub use keep::{Counts, Keep, Keeper, Overlay};
-pub use read::{Message, ReadError, ReadSummary, Reader, Recorded, holes, metadata, read};
+pub use read::{Message, ReadError, ReadSummary, Reader, holes, metadata, read};
 pub use writer::{FlightRecorder, Options, RecordError, Totals, parts};
 
 use std::path::{Path, PathBuf};

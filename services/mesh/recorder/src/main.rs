@@ -5,9 +5,8 @@
 //! with its index. With `--live` the same channels are served to a viewer.
 
 use clap::Parser;
-use config::Dof;
 use messages::topics;
-use recorder::{CommandDof, FlightRecorder, Options};
+use recorder::{Drain, FlightRecorder, Options};
 use runtime::{CommonArgs, Flow, Runtime, Timer};
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -60,63 +59,29 @@ fn main() -> ExitCode {
 
 /// Every topic of the endpoint, read by the recorder.
 struct Taps {
-    states: messages::Tap<messages::VehicleStateMsg>,
     frames: messages::FrameTap,
-    observations: messages::Tap<messages::CableObservationMsg>,
-    commands: Vec<(CommandDof, messages::Tap<messages::DofCommand>)>,
-    setpoints: messages::Tap<messages::ThrusterSetpoints>,
-    learning: Vec<(Dof, messages::Tap<messages::LearningStats>)>,
-    events: messages::Tap<messages::SupervisorEvent>,
+    /// Every other topic the recorder records as it is (`recorder::channels`).
+    plain: Vec<Box<dyn Drain>>,
 }
 
 impl Taps {
     fn open(rt: &Runtime) -> anyhow::Result<Taps> {
         Ok(Taps {
-            states: rt.tap(&topics::VEHICLE_STATE)?,
             frames: rt.frame_tap()?,
-            observations: rt.tap(&topics::CABLE_OBSERVATION)?,
-            commands: CommandDof::ALL
-                .into_iter()
-                .map(|d| Ok((d, rt.tap(&d.topic())?)))
-                .collect::<anyhow::Result<_>>()?,
-            setpoints: rt.tap(&topics::THRUSTER_SETPOINTS)?,
-            learning: Dof::ALL
-                .into_iter()
-                .map(|d| Ok((d, rt.tap(&topics::learning(d))?)))
-                .collect::<anyhow::Result<_>>()?,
-            events: rt.tap(&topics::SUPERVISOR_EVENTS)?,
+            plain: recorder::taps(rt)?,
         })
     }
 
-    /// Everything unread, into the record, in the loop's order (a step's frame before its
-    /// estimate, before its commands, before its setpoints).
+    /// Everything unread, into the record: the frames first (a step's estimate is drawn over its
+    /// frame's image once that is written), then the other topics in the table's order.
     fn drain(&self, rec: &mut FlightRecorder) -> anyhow::Result<()> {
-        while let Some(m) = self.states.receive()? {
-            rec.state(&m);
-        }
         while self
             .frames
             .receive_with(|header, image| rec.frame(header, image))?
             .is_some()
         {}
-        while let Some(m) = self.observations.receive()? {
-            rec.observation(&m);
-        }
-        for (dof, tap) in &self.commands {
-            while let Some(m) = tap.receive()? {
-                rec.command(*dof, &m);
-            }
-        }
-        while let Some(m) = self.setpoints.receive()? {
-            rec.setpoints(&m);
-        }
-        for (dof, tap) in &self.learning {
-            while let Some(m) = tap.receive()? {
-                rec.learning(*dof, &m);
-            }
-        }
-        while let Some(m) = self.events.receive()? {
-            rec.event(&m);
+        for tap in &self.plain {
+            tap.drain(rec)?;
         }
         Ok(())
     }

@@ -2,33 +2,13 @@
 //! payloads the mesh sent (the `mcap` crate's streaming reader: it needs no index, so a part cut by
 //! a SIGKILL is read up to its last complete chunk, and reported as cut).
 
-use crate::channels::{Channel, CommandDof};
+use crate::channels::{Channel, Recorded};
 use crate::image::Image;
-use crate::{json, writer};
-use messages::{
-    CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats, RecorderStatus,
-    SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
-};
+use crate::writer;
 use prost::Message as _;
 use std::collections::BTreeMap;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
-
-/// A recorded message, as the mesh sent it.
-#[derive(Clone, Debug, PartialEq)]
-pub enum Recorded {
-    State(VehicleStateMsg),
-    FrameHeader(CameraFrameHeader),
-    Image(Image),
-    Observation(CableObservationMsg),
-    /// Perception's overlay (not decoded: it is drawn from the observation).
-    Overlay,
-    Command(CommandDof, DofCommand),
-    Setpoints(ThrusterSetpoints),
-    Learning(config::Dof, LearningStats),
-    Event(SupervisorEvent),
-    Status(RecorderStatus),
-}
 
 /// One message of a record.
 #[derive(Clone, Debug, PartialEq)]
@@ -82,38 +62,17 @@ pub enum ReadError {
 }
 
 fn decode(channel: Channel, data: &[u8]) -> Result<Recorded, String> {
-    fn js<'a, T: serde::Deserialize<'a>>(data: &'a [u8]) -> Result<T, String> {
-        serde_json::from_slice(data).map_err(|e| e.to_string())
-    }
-    Ok(match channel {
-        Channel::VehicleState => Recorded::State((&js::<json::VehicleStateJson>(data)?).into()),
-        Channel::FrameHeader => Recorded::FrameHeader((&js::<json::FrameHeaderJson>(data)?).into()),
+    match channel {
         Channel::Image => {
             let raw =
                 foxglove::messages::RawImage::decode(data).map_err(|e| format!("protobuf: {e}"))?;
-            Recorded::Image(Image::try_from(raw).map_err(|e| e.to_string())?)
+            Ok(Recorded::Image(
+                Image::try_from(raw).map_err(|e| e.to_string())?,
+            ))
         }
-        Channel::Observation => {
-            Recorded::Observation((&js::<json::CableObservationJson>(data)?).into())
-        }
-        Channel::Annotation => Recorded::Overlay,
-        Channel::SurgeCommand | Channel::SwayCommand | Channel::YawCommand => {
-            let dof = CommandDof::ALL
-                .into_iter()
-                .find(|d| d.channel() == channel)
-                .unwrap_or(CommandDof::Surge);
-            Recorded::Command(dof, (&js::<json::CommandJson>(data)?).into())
-        }
-        Channel::Setpoints => Recorded::Setpoints((&js::<json::SetpointsJson>(data)?).into()),
-        Channel::SwayLearning => {
-            Recorded::Learning(config::Dof::Sway, (&js::<json::LearningJson>(data)?).into())
-        }
-        Channel::YawLearning => {
-            Recorded::Learning(config::Dof::Yaw, (&js::<json::LearningJson>(data)?).into())
-        }
-        Channel::Events => Recorded::Event((&js::<json::EventJson>(data)?).into()),
-        Channel::Status => Recorded::Status((&js::<json::StatusJson>(data)?).into()),
-    })
+        Channel::Annotation => Ok(Recorded::Overlay),
+        _ => Recorded::from_json(channel, data),
+    }
 }
 
 /// A record's messages, pulled one by one: every part in order, every message in file order. A part

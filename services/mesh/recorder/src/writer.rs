@@ -4,18 +4,15 @@
 //! SIGKILL can lose), rotated to a new part when it reaches its size limit, and closed with its
 //! summary and index.
 
-use crate::channels::{Channel, CommandDof};
+use crate::channels::{Channel, Key, Recorded};
 use crate::keep::{Keep, Keeper, Overlay};
-use crate::{image, json, part_path};
+use crate::{image, part_path};
 use foxglove::messages::{ImageAnnotations, RawImage};
 use foxglove::{
     Context, FoxgloveError, McapCompression, McapWriteOptions, McapWriterHandle, PartialMetadata,
     RawChannel, Schema, WebSocketServerHandle,
 };
-use messages::{
-    CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats, RecorderStatus,
-    SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
-};
+use messages::{CableObservationMsg, CameraFrameHeader, RecorderStatus};
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
@@ -290,38 +287,43 @@ impl FlightRecorder {
         Ok(port)
     }
 
-    fn log_json<T: serde::Serialize>(&mut self, channel: Channel, form: &T, log_time: u64) {
+    /// Writes `item` as JSON on its channel unless it was written before; its log time when written.
+    fn write_json(&mut self, item: &Recorded) -> Option<u64> {
+        let channel = item.channel();
+        let keep = match item.key()? {
+            Key::EachStep(stamp) | Key::Stamped(stamp) => self.keeper.stamped(channel, &stamp),
+            Key::Seq(seq) => self.keeper.unstamped(channel, seq),
+        };
+        let Keep::Write { log_time } = keep else {
+            return None;
+        };
         self.buf.clear();
-        // Serialising these plain structs into a Vec cannot fail.
-        if serde_json::to_writer(&mut self.buf, form).is_ok()
+        // Serialising a payload into a Vec cannot fail.
+        if item.write_json(&mut self.buf)
             && let Some(ch) = self.json.get(&channel)
         {
             ch.log_with_meta(&self.buf, PartialMetadata::with_log_time(log_time));
             self.messages += 1;
         }
+        Some(log_time)
     }
 
-    pub fn state(&mut self, m: &VehicleStateMsg) {
-        if let Keep::Write { log_time } = self.keeper.stamped(Channel::VehicleState, &m.stamp) {
-            self.log_json(
-                Channel::VehicleState,
-                &json::VehicleStateJson::from(m),
-                log_time,
-            );
+    /// A message of the mesh, on its channel, once; perception's estimate also drawn over its
+    /// frame's image once that is written. Images and overlays are written with their frame
+    /// ([`FlightRecorder::frame`]): passed here, they are ignored.
+    pub fn log(&mut self, item: &Recorded) {
+        if self.write_json(item).is_some()
+            && let Recorded::Observation(o) = item
+        {
+            self.draw(o);
         }
     }
 
     /// A camera frame: its header, and its image unless decimated.
     pub fn frame(&mut self, header: &CameraFrameHeader, pixels: &[u8]) {
-        let Keep::Write { log_time } = self.keeper.stamped(Channel::FrameHeader, &header.stamp)
-        else {
+        let Some(log_time) = self.write_json(&Recorded::FrameHeader(*header)) else {
             return;
         };
-        self.log_json(
-            Channel::FrameHeader,
-            &json::FrameHeaderJson::from(header),
-            log_time,
-        );
         let raw = image::raw_image(header, pixels);
         if self.keeper.image(&header.stamp, raw.is_some())
             && let Some(raw) = raw
@@ -353,48 +355,6 @@ impl FlightRecorder {
                 self.waiting.push_back(*o);
             }
             Overlay::Never => {}
-        }
-    }
-
-    /// Perception's estimate, and its overlay when its frame's image was recorded.
-    pub fn observation(&mut self, m: &CableObservationMsg) {
-        let Keep::Write { log_time } = self.keeper.stamped(Channel::Observation, &m.stamp) else {
-            return;
-        };
-        self.log_json(
-            Channel::Observation,
-            &json::CableObservationJson::from(m),
-            log_time,
-        );
-        self.draw(m);
-    }
-
-    pub fn command(&mut self, dof: CommandDof, m: &DofCommand) {
-        let c = dof.channel();
-        if let Keep::Write { log_time } = self.keeper.stamped(c, &m.stamp) {
-            self.log_json(c, &json::CommandJson::from(m), log_time);
-        }
-    }
-
-    pub fn setpoints(&mut self, m: &ThrusterSetpoints) {
-        if let Keep::Write { log_time } = self.keeper.stamped(Channel::Setpoints, &m.stamp) {
-            self.log_json(Channel::Setpoints, &json::SetpointsJson::from(m), log_time);
-        }
-    }
-
-    pub fn learning(&mut self, dof: config::Dof, m: &LearningStats) {
-        let c = match dof {
-            config::Dof::Sway => Channel::SwayLearning,
-            config::Dof::Yaw => Channel::YawLearning,
-        };
-        if let Keep::Write { log_time } = self.keeper.stamped(c, &m.stamp) {
-            self.log_json(c, &json::LearningJson::from(m), log_time);
-        }
-    }
-
-    pub fn event(&mut self, e: &SupervisorEvent) {
-        if let Keep::Write { log_time } = self.keeper.unstamped(Channel::Events, e.seq) {
-            self.log_json(Channel::Events, &json::EventJson::from(e), log_time);
         }
     }
 
@@ -461,8 +421,7 @@ impl FlightRecorder {
             part: self.part,
             _reserved: 0,
         };
-        if let Keep::Write { log_time } = self.keeper.unstamped(Channel::Status, s.seq) {
-            self.log_json(Channel::Status, &json::StatusJson::from(&s), log_time);
+        if self.write_json(&Recorded::Status(s)).is_some() {
             s.messages = self.messages;
         }
         s

@@ -58,6 +58,7 @@ fn step(k: u64) -> Step {
             width: W,
             height: H,
             truth: observation,
+            ..Default::default()
         },
         image,
         observation: CableObservationMsg { stamp, observation },
@@ -75,11 +76,11 @@ fn step(k: u64) -> Step {
 
 fn record(rec: &mut FlightRecorder, s: &Step) {
     rec.frame(&s.header, &s.image);
-    rec.observation(&s.observation);
-    for (dof, c) in CommandDof::ALL.into_iter().zip(&s.commands) {
-        rec.command(dof, c);
+    rec.log(&Recorded::Observation(s.observation));
+    for (dof, c) in CommandDof::ALL.into_iter().zip(s.commands) {
+        rec.log(&Recorded::Command(dof, c));
     }
-    rec.setpoints(&s.setpoints);
+    rec.log(&Recorded::Setpoints(s.setpoints));
 }
 
 fn write(path: &Path, steps: u64, opts: impl FnOnce(&mut Options)) -> recorder::Totals {
@@ -90,17 +91,17 @@ fn write(path: &Path, steps: u64, opts: impl FnOnce(&mut Options)) -> recorder::
         let s = step(k);
         record(&mut rec, &s);
         // A re-send of the step: recorded once.
-        rec.setpoints(&s.setpoints);
+        rec.log(&Recorded::Setpoints(s.setpoints));
         if k % 50 == 49 {
-            rec.learning(
+            rec.log(&Recorded::Learning(
                 config::Dof::Yaw,
-                &LearningStats {
+                LearningStats {
                     stamp: s.header.stamp,
                     episode_return: -1.0 - k as f64,
                     steps: 49,
                     ..Default::default()
                 },
-            );
+            ));
         }
         rec.rotate_if_due().unwrap();
     }
@@ -328,9 +329,9 @@ fn holes_reads_the_missed_steps_from_the_totals() {
         if k == 10 {
             // Every message of step 10 but its setpoints.
             rec.frame(&s.header, &s.image);
-            rec.observation(&s.observation);
-            for (dof, c) in CommandDof::ALL.into_iter().zip(&s.commands) {
-                rec.command(dof, c);
+            rec.log(&Recorded::Observation(s.observation));
+            for (dof, c) in CommandDof::ALL.into_iter().zip(s.commands) {
+                rec.log(&Recorded::Command(dof, c));
             }
         } else {
             record(&mut rec, &s);

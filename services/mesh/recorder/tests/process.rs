@@ -54,7 +54,7 @@ fn a_recorded_sim_mesh_run_holds_every_step_on_every_channel() {
         .wait(T)
         .unwrap_or_else(|| panic!("the mesh did not finish in {T:?}:\n{}", supervisor.log()));
     assert!(status.success(), "{}", supervisor.log());
-    let run: monitor::RunRecord =
+    let run: records::RunRecord =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(run.episodes, 3);
     // Every episode's published steps: its transitions and its terminal step.

@@ -1,11 +1,19 @@
 //! The shore link's core: which services cross (an allow-list generated from the messages topic
-//! table), the zenoh settings (explicit endpoints, no scouting), and the demo's report computed from
-//! what each side recorded. Plain data; `main.rs` runs the link over iceoryx2's zenoh tunnel.
+//! table), the zenoh settings (explicit endpoints, no scouting, mutual TLS: [`security`]), what the
+//! shore shows of the telemetry (never a stale step as new: [`Shown`]), the bad network of the demo
+//! ([`impair`]), and the demo's report computed from what each side recorded. Plain data; `main.rs`
+//! runs the link over iceoryx2's zenoh tunnel.
 
-use messages::Qos;
+pub mod impair;
+pub mod security;
+
 use messages::topics::{self, Endpoint, health, shore};
+use messages::{Qos, Stamp};
+use runtime::lockstep::{Screen, ScreenLimits, Verdict};
+use security::Security;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
+use std::time::Duration;
 
 /// The services that cross the link: telemetry up from the vehicle, commands down from the shore.
 /// The tunnel's filter is one predicate for both directions, so the two directions are kept apart
@@ -78,20 +86,114 @@ pub enum Side {
 
 /// The zenoh settings, as (key, JSON5 value): peer mode (client mode would give up when the
 /// vehicle is unreachable at start), one explicit endpoint, no multicast or gossip scouting (zenoh's
-/// defaults would join any peer on the network and bridge with it).
-pub fn zenoh_settings(side: Side, endpoint: &str) -> Vec<(&'static str, String)> {
+/// defaults would join any peer on the network and bridge with it), and `security`'s protocol and
+/// checks ([`security::tls_settings`]).
+pub fn zenoh_settings(
+    side: Side,
+    endpoint: &str,
+    security: &Security,
+) -> Vec<(&'static str, String)> {
     let one = format!("[{}]", serde_json::Value::from(endpoint));
     let (listen, connect) = match side {
         Side::Vehicle => (one, "[]".to_owned()),
         Side::Shore => ("[]".to_owned(), one),
     };
-    vec![
+    let mut settings = vec![
         ("mode", "\"peer\"".to_owned()),
         ("listen/endpoints", listen),
         ("connect/endpoints", connect),
         ("scouting/multicast/enabled", "false".to_owned()),
         ("scouting/gossip/enabled", "false".to_owned()),
-    ]
+    ];
+    settings.extend(security::tls_settings(side == Side::Vehicle, security));
+    settings
+}
+
+/// How the shore judges the telemetry's stamps: the mesh's one rule ([`Screen`]) on order (a step
+/// not newer than the newest shown of its epoch is refused; a returning older epoch is judged
+/// against its own last step), with limits for a link rather than a control loop. Age is not
+/// judged: over a slow link a late step that is still the newest is shown, with its latency; only
+/// an hour's stall would make it "too old". `seq` may advance as fast as a producer at 100 Hz (the
+/// demo runs the vehicle faster than real time), so a forged huge `seq` cannot lock out the live
+/// steps.
+pub const SHORE_MAX_AGE: Duration = Duration::from_secs(3600);
+
+pub fn shore_limits() -> ScreenLimits {
+    ScreenLimits {
+        max_age: SHORE_MAX_AGE,
+        max_ahead: SHORE_MAX_AGE,
+        period: Duration::from_millis(10),
+    }
+}
+
+/// What the shore shows of one stamped topic: a step the screen finds new is shown; a repeat, an
+/// older step or one flagged by the screen is refused and counted, never shown as new.
+#[derive(Clone, Debug)]
+pub struct Shown {
+    screen: Screen,
+    pub shown: u64,
+    pub refused: u64,
+}
+
+impl Shown {
+    pub fn new(topic: &str) -> Self {
+        Shown {
+            screen: Screen::new(topic, shore_limits()),
+            shown: 0,
+            refused: 0,
+        }
+    }
+
+    /// Whether the step stamped `stamp`, arriving at `now_ns` (this host's monotonic clock), is
+    /// shown.
+    pub fn judge(&mut self, stamp: &Stamp, now_ns: u64) -> bool {
+        match self.screen.check(stamp, now_ns) {
+            Verdict::New => {
+                self.screen.accept(stamp, now_ns);
+                self.shown += 1;
+                true
+            }
+            Verdict::Repeat | Verdict::Refused(_) => {
+                self.refused += 1;
+                false
+            }
+        }
+    }
+}
+
+/// One arrival on the shore as the operator recorded it: its step and whether it was shown.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Judged {
+    pub epoch: u32,
+    pub seq: u64,
+    pub shown: bool,
+}
+
+/// The shore's order, recomputed from the operator's record independently of [`Shown`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Order {
+    /// Arrivals not newer than the newest step of their epoch shown before them.
+    pub stale_arrivals: u64,
+    /// Of those, shown anyway: stale data shown as new (must be 0).
+    pub stale_shown: u64,
+    /// Arrivals refused (stale, or flagged by the screen's other rules).
+    pub refused: u64,
+}
+
+pub fn order(arrivals: &[Judged]) -> Order {
+    let mut newest: BTreeMap<u32, u64> = BTreeMap::new();
+    let mut o = Order::default();
+    for a in arrivals {
+        let stale = newest.get(&a.epoch).is_some_and(|&n| a.seq <= n);
+        o.stale_arrivals += u64::from(stale);
+        o.stale_shown += u64::from(stale && a.shown);
+        o.refused += u64::from(!a.shown);
+        if a.shown {
+            let n = newest.entry(a.epoch).or_insert(a.seq);
+            *n = (*n).max(a.seq);
+        }
+    }
+    o
 }
 
 /// One telemetry sample as a side saw it arrive: its step's sequence number and the arrival on the
@@ -105,23 +207,48 @@ pub struct Arrival {
 /// The demo's result.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Report {
+    /// `tls` or `insecure`.
+    pub security: String,
+    /// The network's impairment (netem's arguments), if any.
+    pub netem: Option<String>,
     /// Cable observations published on the vehicle while the shore was watching.
     pub sent: usize,
+    /// Of those, shown on shore.
     pub received_on_shore: usize,
+    pub received_share: f64,
     /// Added by the link: arrival on shore minus arrival on the vehicle, same step.
     pub latency_ms: Latency,
+    /// The order of what the shore received and showed.
+    pub order: Order,
     /// Steps the vehicle missed while the shore watched (see [`steps_missed`]).
     pub vehicle_steps_missed: u64,
     /// From the link's return to the first telemetry on shore (none: no cut, or never back).
     pub shore_back_after_s: Option<f64>,
     /// Messages or services outside the allow-list seen on the shore.
     pub outside_allow_list_seen: u64,
+    /// The operator's stops that reached the vehicle's mission topic.
+    pub stops_reached_vehicle: u64,
     pub stop_obeyed: bool,
+    /// Operators under a shore end without a valid certificate.
+    pub rogues: Vec<Rogue>,
+    /// Whether a process on the vehicle was refused a publisher on the mission topic (if tried).
+    pub local_forger_refused: Option<bool>,
     /// Per topic received on shore: messages and payload bytes per second of the watch.
     pub topics: BTreeMap<String, TopicRate>,
     /// Everything the vehicle's network interface sent per second of the watch (payloads, zenoh's
     /// framing and keep-alives, TCP/IP headers).
     pub link_bytes_per_s: Option<f64>,
+}
+
+/// What an operator behind a rogue shore end got, and what its stops did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Rogue {
+    /// Observations received.
+    pub received: u64,
+    pub stops_sent: u64,
+    /// Of its stops, those that reached the vehicle's mission topic (matched by the sender's
+    /// clock stamp).
+    pub stops_reached_vehicle: u64,
 }
 
 /// What the operator received of one topic.
@@ -219,11 +346,12 @@ pub fn back_after(shore: &[Arrival], link_up_ns: u64) -> Option<f64> {
 }
 
 /// Steps the vehicle missed while the shore watched (from the first to the last observation the shore
-/// received): frames that reached the vehicle but were answered by no setpoints, and setpoints that
-/// lacked a command. `frames` are the frames' step numbers; `steps` the vehicle's setpoints, as (seq,
-/// commands missing). A frame lost before the vehicle (the twin drops some, as a real link does) is
-/// no step of the vehicle's. Start-up and the stop are outside the window: the link is not running
-/// then.
+/// received) and its loop ran (from its first complete step on): frames that reached the vehicle but
+/// were answered by no setpoints, and setpoints that lacked a command. `frames` are the frames' step
+/// numbers; `steps` the vehicle's setpoints, as (seq, commands missing). A frame lost before the
+/// vehicle (the twin drops some, as a real link does) is no step of the vehicle's. The mesh's
+/// start-up (its first frames answered before every behaviour has joined, or not at all) and its
+/// stop are outside the window: the link may already be up at start-up, but the loop is not.
 pub fn steps_missed(frames: &[u64], steps: &[(u64, u64)], shore: &[Arrival]) -> u64 {
     let (Some(first), Some(last)) = (
         shore.iter().map(|a| a.seq).min(),
@@ -231,7 +359,19 @@ pub fn steps_missed(frames: &[u64], steps: &[(u64, u64)], shore: &[Arrival]) -> 
     ) else {
         return 0;
     };
-    let window = first..=last;
+    let Some(running) = steps
+        .iter()
+        .filter(|&&(_, missing)| missing == 0)
+        .map(|&(seq, _)| seq)
+        .min()
+    else {
+        // The loop never answered a step completely while the shore watched: all of it missed.
+        return frames
+            .iter()
+            .filter(|seq| (first..=last).contains(*seq))
+            .count() as u64;
+    };
+    let window = first.max(running)..=last;
     let answered: std::collections::BTreeSet<u64> = steps.iter().map(|&(seq, _)| seq).collect();
     let unanswered = frames
         .iter()
@@ -285,12 +425,19 @@ mod tests {
         assert_eq!(steps_missed(&frames, &steps, &[]), 0);
         // The same steps with no frame lost or unanswered: only step 11 is missed.
         assert_eq!(steps_missed(&[10, 11, 14, 15], &steps, &shore), 1);
+        // The shore watched from the mesh's start: steps 1 and 2 before its loop ran (2 unanswered,
+        // 1 incomplete) are start-up, not misses; 4 unanswered and 5 incomplete after it are.
+        let from_start = [1, 5].map(|seq| Arrival { seq, at_ns: 0 });
+        let start_steps = [(1, 2), (3, 0), (5, 1)];
+        assert_eq!(steps_missed(&[1, 2, 3, 4, 5], &start_steps, &from_start), 2);
+        // A loop that never answered completely missed every frame of the watch.
+        assert_eq!(steps_missed(&[1, 2, 3], &[(1, 1)], &from_start), 3);
     }
 
     #[test]
     fn the_vehicle_listens_the_shore_connects_and_nobody_scouts() {
-        let v = zenoh_settings(Side::Vehicle, "tcp/10.0.0.1:7447");
-        let s = zenoh_settings(Side::Shore, "tcp/10.0.0.1:7447");
+        let v = zenoh_settings(Side::Vehicle, "tcp/10.0.0.1:7447", &Security::Insecure);
+        let s = zenoh_settings(Side::Shore, "tcp/10.0.0.1:7447", &Security::Insecure);
         let get =
             |c: &[(&str, String)], k: &str| c.iter().find(|(key, _)| *key == k).unwrap().1.clone();
         assert_eq!(get(&v, "listen/endpoints"), r#"["tcp/10.0.0.1:7447"]"#);
@@ -299,30 +446,87 @@ mod tests {
         for c in [&v, &s] {
             assert_eq!(get(c, "scouting/multicast/enabled"), "false");
             assert_eq!(get(c, "scouting/gossip/enabled"), "false");
+            assert_eq!(get(c, "transport/link/protocols"), r#"["tcp"]"#);
         }
+        let files = security::KeyFiles::in_dir(std::path::Path::new("/k/vehicle"));
+        let tls = zenoh_settings(Side::Vehicle, "tls/10.0.0.1:7447", &Security::Tls(files));
+        assert_eq!(get(&tls, "transport/link/protocols"), r#"["tls"]"#);
+        assert_eq!(
+            get(&tls, "transport/link/tls/listen_certificate"),
+            r#""/k/vehicle/cert.pem""#
+        );
+    }
+
+    /// A timed stamp; the vehicle's clock starts at 1 s (a clock of 0 means untimed).
+    fn stamp(epoch: u32, seq: u64, clock_ms: u64) -> Stamp {
+        let clock_ns = (1000 + clock_ms) * 1_000_000;
+        Stamp::new(seq, clock_ns, 0, 0, messages::StepStatus::Running).timed(epoch, clock_ns)
     }
 
     #[test]
-    fn figures_join_the_two_sides_by_step() {
+    fn the_shore_shows_no_step_older_than_one_shown() {
         let ms = 1_000_000;
-        let vehicle: Vec<Arrival> = (0..10)
-            .map(|s| Arrival {
-                seq: s,
-                at_ns: s * 200 * ms,
+        let mut shown = Shown::new("cable_observation");
+        // Steps 1..=6 of epoch 7, 200 ms apart, arriving 300 ms later with jitter, two reordered and
+        // one repeated; then a restarted producer's epoch 9 from seq 1; then epoch 7's last step
+        // again, a straggler of the old epoch.
+        let arrivals = [
+            (7, 1, 0, 300),
+            (7, 3, 400, 680),
+            (7, 2, 200, 690),
+            (7, 4, 600, 900),
+            (7, 4, 600, 905),
+            (7, 6, 1000, 1300),
+            (7, 5, 800, 1310),
+            (9, 1, 1200, 1500),
+            (9, 2, 1400, 1700),
+            (7, 6, 1000, 1750),
+        ];
+        let judged: Vec<Judged> = arrivals
+            .iter()
+            .map(|&(epoch, seq, clock, at)| Judged {
+                epoch,
+                seq,
+                shown: shown.judge(&stamp(epoch, seq, clock), at * ms),
             })
             .collect();
-        // The shore saw steps 2..=8 except 5, each 3 ms later.
-        let shore: Vec<Arrival> = (2..=8)
-            .filter(|&s| s != 5)
-            .map(|s| Arrival {
-                seq: s,
-                at_ns: s * 200 * ms + 3 * ms,
-            })
+        let shown_steps: Vec<(u32, u64)> = judged
+            .iter()
+            .filter(|j| j.shown)
+            .map(|j| (j.epoch, j.seq))
             .collect();
-        let (sent, received, latency) = link_figures(&vehicle, &shore);
-        assert_eq!((sent, received), (7, 6));
-        assert!((latency.p50 - 3.0).abs() < 1e-9 && (latency.p99 - 3.0).abs() < 1e-9);
-        assert_eq!(back_after(&shore, 1000 * ms), Some(0.203));
-        assert_eq!(back_after(&shore, 10_000 * ms), None);
+        assert_eq!(
+            shown_steps,
+            [(7, 1), (7, 3), (7, 4), (7, 6), (9, 1), (9, 2)]
+        );
+        assert_eq!((shown.shown, shown.refused), (6, 4));
+        let o = order(&judged);
+        assert_eq!(
+            o,
+            Order {
+                stale_arrivals: 4,
+                stale_shown: 0,
+                refused: 4
+            }
+        );
+        // The recomputation catches a stale step shown as new.
+        let mut wrong = judged.clone();
+        wrong[2].shown = true;
+        assert_eq!(order(&wrong).stale_shown, 1);
+    }
+
+    #[test]
+    fn a_late_step_still_newest_is_shown_and_a_forged_one_refused() {
+        let ms = 1_000_000;
+        let mut shown = Shown::new("cable_observation");
+        assert!(shown.judge(&stamp(3, 1, 0), 300 * ms));
+        // Step 2 comes 6 s late (a congested link): still the newest, shown.
+        assert!(shown.judge(&stamp(3, 2, 200), 6_500 * ms));
+        // A later step stamped before the last one: a forged or corrupt stamp, refused.
+        assert!(!shown.judge(&stamp(3, 3, 100), 6_600 * ms));
+        // A `seq` its producer cannot have reached (at most 8 + 2 per 10 ms of its clock).
+        assert!(!shown.judge(&stamp(3, 1_000_000, 400), 6_700 * ms));
+        assert!(shown.judge(&stamp(3, 4, 600), 6_900 * ms));
+        assert_eq!((shown.shown, shown.refused), (3, 2));
     }
 }

@@ -1,9 +1,13 @@
-//! `shore-link`: the vehicle's mesh seen from a shore computer, over zenoh.
+//! `shore-link`: the vehicle's mesh seen from a shore computer, over zenoh with mutual TLS.
 //!
-//! - `shore-link vehicle --listen tcp/ADDR:PORT`: on the vehicle, beside its mesh.
-//! - `shore-link shore --connect tcp/ADDR:PORT`: on the shore.
+//! - `shore-link keys DIR`: the vehicle's CA and the two key pairs (DIR/vehicle, DIR/shore).
+//! - `shore-link vehicle --listen ADDR:PORT --keys DIR/vehicle`: on the vehicle, beside its mesh.
+//! - `shore-link shore --connect ADDR:PORT --keys DIR/shore`: on the shore.
 //! - `shore-link operator`: on the shore, the operator's side of the demo: receives the telemetry the
-//!   link brings up, records each arrival, and sends a stop at the end.
+//!   link brings up, shows only steps newer than those shown, records each arrival, and sends a
+//!   stop at the end.
+//! - `shore-link impair`: the demo's bad network between two TUN devices, where the kernel has no
+//!   netem.
 //! - `shore-link report`: joins what both sides recorded into the demo's JSON.
 //!
 //! The link is iceoryx2's zenoh tunnel (`iceoryx2-link`, `iceoryx2-link-tunnel`, the zenoh carrier)
@@ -19,12 +23,16 @@ use iceoryx2_link::Link;
 use iceoryx2_link_tunnel::Tunnel;
 use messages::topics::{self, Endpoint, health, shore};
 use messages::{FrameInbox, Inbox, Mission, MissionCommand, Outbox, Topic};
-use shore_link::{AllowList, Arrival, Report, Side, TopicTraffic};
+use runtime::Tally;
+use shore_link::security::{self, KeyFiles, Security};
+use shore_link::{AllowList, Arrival, Judged, Report, Rogue, Shown, Side, TopicTraffic};
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
+
+mod relay;
 
 #[derive(Parser)]
 #[command(
@@ -57,9 +65,22 @@ struct Iox {
     endpoint: Endpoint,
 }
 
+/// How this end authenticates: a key directory, or plain TCP by name.
+#[derive(clap::Args, Clone, Debug)]
+struct Auth {
+    /// This end's key directory (`keys DIR` writes DIR/vehicle and DIR/shore): the vehicle's CA,
+    /// this end's certificate and private key.
+    #[arg(long, required_unless_present = "insecure")]
+    keys: Option<PathBuf>,
+    /// Plain TCP: no authentication, no encryption; anyone who reaches the port can read the
+    /// telemetry and stop the vehicle. Logged at WARN every minute while running.
+    #[arg(long, conflicts_with = "keys")]
+    insecure: bool,
+}
+
 #[derive(Subcommand)]
 enum Command {
-    /// The vehicle's end: listens on ENDPOINT (e.g. tcp/10.0.0.1:7447).
+    /// The vehicle's end: listens on ENDPOINT (HOST:PORT, tls/ by default; port 7447 if none).
     Vehicle {
         #[arg(long)]
         listen: String,
@@ -71,6 +92,8 @@ enum Command {
         #[arg(long)]
         record: Option<PathBuf>,
         #[command(flatten)]
+        auth: Auth,
+        #[command(flatten)]
         iox: Iox,
     },
     /// The shore's end: connects to the vehicle's ENDPOINT, retrying while it is unreachable.
@@ -80,7 +103,21 @@ enum Command {
         #[arg(long)]
         frames: bool,
         #[command(flatten)]
+        auth: Auth,
+        #[command(flatten)]
         iox: Iox,
+    },
+    /// Makes the vehicle's CA and the two key pairs it signs: DIR/vehicle stays on the vehicle,
+    /// DIR/shore goes to the shore computer. The CA's private key is not kept.
+    Keys {
+        dir: PathBuf,
+        /// A name or address the shore reaches the vehicle by (repeatable); the shore checks it.
+        /// Default: this machine's host name, localhost, 127.0.0.1 and ::1.
+        #[arg(long = "vehicle-name")]
+        vehicle_names: Vec<String>,
+        /// How long the certificates are valid.
+        #[arg(long, default_value_t = 730)]
+        days: u32,
     },
     /// The operator on the shore: records the telemetry's arrivals for SECONDS, then sends a stop.
     Operator {
@@ -92,6 +129,29 @@ enum Command {
         /// Count the camera frames that cross too (the link's `--frames`).
         #[arg(long)]
         frames: bool,
+        #[command(flatten)]
+        iox: Iox,
+    },
+    /// A bad network between two network namespaces: forwards the IP packets of a TUN device in
+    /// each (NAMESPACE/DEVICE, both made beforehand with `ip tuntap add ... mode tun`), each
+    /// direction impaired by netem's rules. Prints `ready` once both are attached; runs until
+    /// SIGTERM, then prints what each direction did.
+    Impair {
+        #[arg(long)]
+        vehicle: String,
+        #[arg(long)]
+        shore: String,
+        /// A preset (loss, delay, reorder, rate) or netem's arguments, e.g. "delay 300ms 50ms".
+        #[arg(long)]
+        netem: String,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Prints netem's arguments for SETTING (a preset's, or SETTING itself once checked).
+    NetemArgs { setting: String },
+    /// Sends one stop on this host's mission topic (on the shore: across the link; on the vehicle
+    /// the link holds the topic, and this is refused).
+    Stop {
         #[command(flatten)]
         iox: Iox,
     },
@@ -109,31 +169,64 @@ enum Command {
         /// Whether the vehicle's supervisor stopped after the shore's stop.
         #[arg(long)]
         stop_obeyed: bool,
+        /// The link's security, as run: tls or insecure.
+        #[arg(long, default_value = "tls")]
+        security: String,
+        /// The network's impairment, as run (netem's arguments).
+        #[arg(long)]
+        netem: Option<String>,
+        /// Records of rogue operators (a shore end without a valid certificate under them).
+        #[arg(long)]
+        rogue: Vec<PathBuf>,
+        /// Whether a process on the vehicle was refused a publisher on the shore's mission topic.
+        #[arg(long)]
+        local_forger_refused: Option<bool>,
         #[arg(long)]
         json: PathBuf,
     },
 }
 
 fn main() -> ExitCode {
+    init_logging();
     let args = Args::parse();
     let result = match args.command {
         Command::Vehicle {
             listen,
             frames,
             record,
+            auth,
             iox,
-        } => link(Side::Vehicle, &listen, frames, record, &iox),
+        } => link(Side::Vehicle, &listen, frames, record, &auth, &iox),
         Command::Shore {
             connect,
             frames,
+            auth,
             iox,
-        } => link(Side::Shore, &connect, frames, None, &iox),
+        } => link(Side::Shore, &connect, frames, None, &auth, &iox),
+        Command::Keys {
+            dir,
+            vehicle_names,
+            days,
+        } => keys(&dir, vehicle_names, days),
         Command::Operator {
             seconds,
             record,
             frames,
             iox,
         } => operator(seconds, &record, frames, &iox),
+        Command::Impair {
+            vehicle,
+            shore,
+            netem,
+            seed,
+        } => relay::impair(&vehicle, &shore, &netem, seed),
+        Command::NetemArgs { setting } => {
+            let args = shore_link::impair::netem_args(&setting);
+            args.parse::<shore_link::impair::Settings>()
+                .map_err(|e| anyhow!("--netem `{setting}`: {e}"))
+                .map(|_| println!("{args}"))
+        }
+        Command::Stop { iox } => stop(&iox),
         Command::Now => {
             println!("{}", now_ns());
             Ok(())
@@ -143,16 +236,108 @@ fn main() -> ExitCode {
             shore,
             link_up_ns,
             stop_obeyed,
+            security,
+            netem,
+            rogue,
+            local_forger_refused,
             json,
-        } => report(&vehicle, &shore, link_up_ns, stop_obeyed, &json),
+        } => report(
+            &vehicle,
+            &shore,
+            link_up_ns,
+            stop_obeyed,
+            Conditions {
+                security,
+                netem,
+                rogue,
+                local_forger_refused,
+            },
+            &json,
+        ),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("shore-link: {e:#}");
+            tracing::error!("{e:#}");
             ExitCode::FAILURE
         }
     }
+}
+
+/// Logs to stderr; `RUST_LOG` overrides the default (this program at info, zenoh at warn: a
+/// refused TLS handshake is zenoh's to tell).
+fn init_logging() {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| EnvFilter::new("info,zenoh=warn,zenoh_link_tls=warn"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_target(false)
+        .init();
+}
+
+/// This end's security from its options: the key directory's files, each checked now so that a
+/// missing or exposed file is named here rather than deep in zenoh's TLS set-up.
+fn security_of(auth: &Auth) -> Result<Security> {
+    let Some(dir) = &auth.keys else {
+        return Ok(Security::Insecure);
+    };
+    let dir = std::fs::canonicalize(dir)
+        .with_context(|| format!("--keys {}: no such directory", dir.display()))?;
+    let files = KeyFiles::in_dir(&dir);
+    for f in [&files.ca, &files.cert, &files.key] {
+        std::fs::File::open(f).with_context(|| {
+            format!(
+                "--keys {}: cannot read {} (`shore-link keys DIR` writes it)",
+                dir.display(),
+                f.display()
+            )
+        })?;
+    }
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(&files.key)?.permissions().mode();
+    security::check_key_mode(&files.key, mode)?;
+    Ok(Security::Tls(files))
+}
+
+/// `shore-link keys DIR`.
+fn keys(dir: &std::path::Path, mut names: Vec<String>, days: u32) -> Result<()> {
+    if names.is_empty() {
+        let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+            .map(|h| h.trim().to_owned())
+            .unwrap_or_default();
+        names = [host.as_str(), "localhost", "127.0.0.1", "::1"]
+            .iter()
+            .filter(|n| !n.is_empty())
+            .map(|n| n.to_string())
+            .collect();
+    }
+    let bundle = security::generate(&names, days, time::OffsetDateTime::now_utc())?;
+    let written = security::write_bundle(dir, &bundle)?;
+    let d = dir.display();
+    println!("wrote (private keys mode 0600, directories 0700):");
+    for f in &written {
+        println!("  {}", f.display());
+    }
+    println!(
+        "certificates valid until {} (UTC); the vehicle's for: {}",
+        bundle.not_after.date(),
+        names.join(", ")
+    );
+    println!(
+        "the CA's private key was not kept: to replace a pair, remove {d}/vehicle and {d}/shore and run keys again"
+    );
+    println!("on the vehicle:  scripts/shore-link vehicle --listen ADDR:7447 --keys {d}/vehicle");
+    println!(
+        "to the shore:    scp -rp {d}/shore SHORE:cabletrack-shore-keys   (then remove {d}/shore here)"
+    );
+    println!(
+        "on the shore:    scripts/shore-link shore --connect NAME:7447 --keys cabletrack-shore-keys"
+    );
+    println!("                 (NAME: one of the vehicle's names above)");
+    Ok(())
 }
 
 /// The iceoryx2 settings of this end. A service the other end offers is created here (a mirror)
@@ -220,23 +405,34 @@ fn line(out: &mut impl Write, value: &serde_json::Value) -> Result<()> {
     Ok(())
 }
 
+/// How often `--insecure` is said again, and a mission topic not held by the link.
+const NAG_EVERY: Duration = Duration::from_secs(60);
+
 /// Runs one end of the link until SIGINT/SIGTERM.
 fn link(
     side: Side,
     endpoint: &str,
     frames: bool,
     record: Option<PathBuf>,
+    auth: &Auth,
     iox: &Iox,
 ) -> Result<()> {
     let cfg = iox_config(iox)?;
     let allow = AllowList::new(iox.endpoint, frames);
+    let security = security_of(auth)?;
+    let endpoint = security::endpoint(endpoint, &security)?;
     let mut z = zenoh::Config::default();
-    for (key, value) in shore_link::zenoh_settings(side, endpoint) {
+    for (key, value) in shore_link::zenoh_settings(side, &endpoint, &security) {
         z.insert_json5(key, &value)
             .map_err(|e| anyhow!("zenoh setting {key} = {value}: {e}"))?;
     }
-    let carrier =
-        ZenohCarrier::create(z).map_err(|e| anyhow!("cannot open the zenoh session: {e:?}"))?;
+    use zenoh::Wait;
+    let session = zenoh::open(z)
+        .wait()
+        .map_err(|e| anyhow!("cannot open the zenoh session on {endpoint}: {e}"))?;
+    let peers = session.clone();
+    let carrier = ZenohCarrier::open(session)
+        .map_err(|e| anyhow!("cannot start the link on the zenoh session: {e:?}"))?;
     let filter = allow.clone();
     let mut link = Link::new(node(&cfg, "shore-link")?, Tunnel::new(carrier, &cfg))
         .with_filter(move |n: &ServiceName| filter.admits(n.as_str()));
@@ -263,6 +459,13 @@ fn link(
         (Some(path), Side::Vehicle) => Some(Recorder::open(&cfg, iox.endpoint, path)?),
         _ => None,
     };
+    // On the vehicle, the mission topic's publishers are the link's alone: its mirror of the shore's
+    // publisher, and this guard in the topic's other place (never publishing), so no other process
+    // of the vehicle can publish a command that would look as if it came from the shore.
+    let mut guard = match side {
+        Side::Vehicle => Some(MissionGuard::new(&cfg)?),
+        Side::Shore => None,
+    };
     let waitset = WaitSetBuilder::new()
         .create::<ipc::Service>()
         .map_err(|e| anyhow!("cannot create a WaitSet: {e:?}"))?;
@@ -278,16 +481,44 @@ fn link(
         .attach_interval(Duration::from_millis(100))
         .map_err(|e| anyhow!("{e:?}"))?;
     let mut recorder = recorder;
-    eprintln!(
-        "shore-link: {side:?} end on {endpoint}, allowing {:?} and {}*, {:?}",
+    tracing::info!(
+        "{side:?} end on {endpoint} ({}), allowing {:?} and {}*, {:?}",
+        match &security {
+            Security::Tls(files) => format!(
+                "mutual TLS, keys in {}",
+                files
+                    .ca
+                    .parent()
+                    .map(|p| p.display().to_string())
+                    .unwrap_or_default()
+            ),
+            Security::Insecure => "plain TCP, unauthenticated".to_owned(),
+        },
         names(&allow.up),
         allow.heartbeats,
         names(&allow.down)
     );
+    let mut insecure = match security {
+        Security::Insecure => Some(Tally::new(NAG_EVERY)),
+        Security::Tls(_) => None,
+    };
     let mut bridging = false;
+    let mut joined: Vec<String> = Vec::new();
+    let mut next_look = 0u64;
     let mut failure = None;
     waitset
         .wait_and_process(|_| {
+            let now = now_ns();
+            if let Some(nag) = &mut insecure
+                && nag.count(now).is_some()
+            {
+                tracing::warn!(
+                    "--insecure: the link is plain TCP on {endpoint}; anyone who reaches it can read the telemetry and stop the vehicle"
+                );
+            }
+            if let Some(g) = &mut guard {
+                g.hold(now);
+            }
             let _ = arrivals.try_wait(|_| {});
             for l in &wakes {
                 let _ = l.try_wait(|_| {});
@@ -299,18 +530,40 @@ fn link(
                 return CallbackProgression::Stop;
             }
             if let Err(e) = link.discover() {
-                eprintln!("shore-link: discovery: {e:?}");
+                tracing::warn!("discovery: {e:?}");
             }
             if let Err(e) = link.propagate() {
-                eprintln!("shore-link: propagation: {e:?}");
+                tracing::warn!("propagation: {e:?}");
             }
-            let now = !link.bridges().empty();
-            if now != bridging {
-                eprintln!(
-                    "shore-link: {}",
-                    if now { "bridging" } else { "nothing to bridge" }
+            let now_bridging = !link.bridges().empty();
+            if now_bridging != bridging {
+                tracing::info!(
+                    "{}",
+                    if now_bridging { "bridging" } else { "nothing to bridge" }
                 );
-                bridging = now;
+                bridging = now_bridging;
+            }
+            // Who is on the other end, as zenoh's session has admitted them (after TLS); looked
+            // up at the poll's pace, not on every sample.
+            if now < next_look {
+                return CallbackProgression::Continue;
+            }
+            next_look = now + 100_000_000;
+            let mut present: Vec<String> = peers
+                .info()
+                .peers_zid()
+                .wait()
+                .map(|z| z.to_string())
+                .collect();
+            present.sort();
+            if present != joined {
+                for p in present.iter().filter(|p| !joined.contains(p)) {
+                    tracing::info!(peer = %p, "a peer joined");
+                }
+                for p in joined.iter().filter(|p| !present.contains(p)) {
+                    tracing::info!(peer = %p, "a peer left");
+                }
+                joined = present;
             }
             CallbackProgression::Continue
         })
@@ -318,6 +571,49 @@ fn link(
     match failure {
         Some(e) => Err(e),
         None => Ok(()),
+    }
+}
+
+/// The vehicle end's hold on the mission topic's spare publisher place (see `link`).
+struct MissionGuard {
+    node: Node<ipc::Service>,
+    held: Option<Outbox<MissionCommand>>,
+    missed: Tally,
+}
+
+impl MissionGuard {
+    fn new(cfg: &IoxConfig) -> Result<MissionGuard> {
+        Ok(MissionGuard {
+            node: node(cfg, "shore-link-guard")?,
+            held: None,
+            missed: Tally::new(NAG_EVERY),
+        })
+    }
+
+    /// Takes the place if not held yet; says so, or why not (rate-limited).
+    fn hold(&mut self, now: u64) {
+        if self.held.is_some() {
+            return;
+        }
+        match Outbox::open_service(
+            &self.node,
+            &shore::service_name(&shore::MISSION),
+            &shore::MISSION,
+        ) {
+            Ok(o) => {
+                tracing::info!(
+                    "the mission topic's publishers on the vehicle are the link's alone"
+                );
+                self.held = Some(o);
+            }
+            Err(e) => {
+                if self.missed.count(now).is_some() {
+                    tracing::warn!(
+                        "cannot hold the mission topic's spare publisher ({e}): another process of the vehicle publishes on it"
+                    );
+                }
+            }
+        }
     }
 }
 
@@ -331,6 +627,8 @@ struct Recorder {
     frames: messages::FrameInbox,
     observations: Inbox<messages::CableObservationMsg>,
     setpoints: Inbox<messages::ThrusterSetpoints>,
+    /// The commands that reached the vehicle's mission topic, whoever sent them.
+    mission: Inbox<MissionCommand>,
     out: std::io::BufWriter<std::fs::File>,
 }
 
@@ -341,6 +639,11 @@ impl Recorder {
             frames: messages::FrameInbox::open(&node, endpoint)?,
             observations: Inbox::open(&node, endpoint, &topics::CABLE_OBSERVATION)?,
             setpoints: Inbox::open(&node, endpoint, &topics::THRUSTER_SETPOINTS)?,
+            mission: Inbox::open_service(
+                &node,
+                &shore::service_name(&shore::MISSION),
+                &shore::MISSION,
+            )?,
             _node: node,
             out: std::io::BufWriter::new(
                 std::fs::File::create(path)
@@ -369,6 +672,12 @@ impl Recorder {
             line(
                 &mut self.out,
                 &serde_json::json!({ "setpoints": { "seq": s.stamp.seq, "missing": s.missing } }),
+            )?;
+        }
+        for m in self.mission.drain()? {
+            line(
+                &mut self.out,
+                &serde_json::json!({ "mission": { "seq": m.seq, "time_ns": m.time_ns } }),
             )?;
         }
         Ok(())
@@ -430,6 +739,9 @@ fn operator(seconds: f64, record: &std::path::Path, frames: bool, iox: &Iox) -> 
     let start = Instant::now();
     let end = Duration::from_secs_f64(seconds.max(0.0));
     let (mut received, mut outside_seen, mut reports) = (0u64, 0u64, 0u64);
+    // What the operator shows: only a step newer than those shown (a repeat, an older step, or one
+    // the screen flags is refused and counted, never shown as new).
+    let mut shown = Shown::new(topics::CABLE_OBSERVATION.name);
     let mut failure = None;
     let mut step = |out: &mut std::io::BufWriter<std::fs::File>| -> Result<()> {
         let _ = observations.listener().try_wait(|_| {});
@@ -439,9 +751,15 @@ fn operator(seconds: f64, record: &std::path::Path, frames: bool, iox: &Iox) -> 
                 .entry(topics::CABLE_OBSERVATION.name)
                 .or_default()
                 .add(std::mem::size_of_val(&o));
+            let at_ns = now_ns();
+            let show = shown.judge(&o.stamp, at_ns);
             line(
                 out,
-                &serde_json::json!({ "arrival": Arrival { seq: o.stamp.seq, at_ns: now_ns() } }),
+                &serde_json::json!({
+                    "arrival": Arrival { seq: o.stamp.seq, at_ns },
+                    "epoch": o.stamp.epoch,
+                    "shown": show,
+                }),
             )?;
         }
         for (l, topic) in learning
@@ -492,12 +810,21 @@ fn operator(seconds: f64, record: &std::path::Path, frames: bool, iox: &Iox) -> 
     let link_bytes = received_bytes()
         .zip(rx_start)
         .map(|(b, a)| b.saturating_sub(a));
-    let stops = stop_until_silent(&mission, &observations)?;
+    let sent = stop_until_silent(&mission, &observations)?;
+    for (seq, time_ns) in &sent {
+        line(
+            &mut out,
+            &serde_json::json!({ "stop": { "seq": seq, "time_ns": time_ns } }),
+        )?;
+    }
+    let stops = sent.len();
     let services = outside_services(&cfg, &AllowList::new(endpoint, frames))?;
     line(
         &mut out,
         &serde_json::json!({ "summary": {
             "received": received,
+            "shown": shown.shown,
+            "refused": shown.refused,
             "learning_reports": reports,
             "outside_messages": outside_seen,
             "outside_services": services,
@@ -508,9 +835,26 @@ fn operator(seconds: f64, record: &std::path::Path, frames: bool, iox: &Iox) -> 
             "stops_sent": stops,
         }}),
     )?;
-    eprintln!(
-        "shore-link operator: {received} observations, {reports} learning reports, {outside_seen} messages and {services:?} services outside the allow-list"
+    tracing::info!(
+        "operator: {received} observations ({} shown, {} refused), {reports} learning reports, {outside_seen} messages and {services:?} services outside the allow-list, {stops} stops sent",
+        shown.shown,
+        shown.refused
     );
+    Ok(())
+}
+
+/// `shore-link stop`.
+fn stop(iox: &Iox) -> Result<()> {
+    let cfg = iox_config(iox)?;
+    let node = node(&cfg, "stop")?;
+    let mission = Outbox::open_service(
+        &node,
+        &shore::service_name(&shore::MISSION),
+        &shore::MISSION,
+    )?;
+    let command = MissionCommand::new(1, now_ns(), Mission::Stop);
+    mission.send(command)?;
+    println!("stop sent (time_ns {})", command.time_ns);
     Ok(())
 }
 
@@ -536,12 +880,12 @@ const SILENT_FOR: Duration = Duration::from_secs(1);
 
 /// Sends the stop, and again every [`SILENT_FOR`] while observations still arrive (a command sent as
 /// the link comes back, or before the link has bridged the mission topic again, can be lost: zenoh
-/// does not replay it), until the vehicle falls silent or [`STOP_FOR`] has passed. Returns how many
-/// stops were sent.
+/// does not replay it), until the vehicle falls silent or [`STOP_FOR`] has passed. Returns the
+/// stops sent, as (seq, time_ns).
 fn stop_until_silent(
     mission: &Outbox<MissionCommand>,
     observations: &Inbox<messages::CableObservationMsg>,
-) -> Result<u64> {
+) -> Result<Vec<(u64, u64)>> {
     let waitset = WaitSetBuilder::new()
         .create::<ipc::Service>()
         .map_err(|e| anyhow!("cannot create a WaitSet: {e:?}"))?;
@@ -549,10 +893,11 @@ fn stop_until_silent(
         .attach_notification(observations.listener())
         .map_err(|e| anyhow!("{e:?}"))?;
     let start = Instant::now();
-    let mut sent = 0u64;
+    let mut sent = Vec::new();
     while start.elapsed() < STOP_FOR {
-        sent += 1;
-        mission.send(MissionCommand::new(sent, now_ns(), Mission::Stop))?;
+        let command = MissionCommand::new(sent.len() as u64 + 1, now_ns(), Mission::Stop);
+        mission.send(command)?;
+        sent.push((command.seq, command.time_ns));
         let window = Instant::now();
         let mut heard = false;
         while window.elapsed() < SILENT_FOR {
@@ -603,30 +948,79 @@ fn operator_endpoint(allow: &AllowList) -> Endpoint {
     }
 }
 
-/// The demo's JSON from the two records.
+/// What the demo ran under, for its report.
+struct Conditions {
+    security: String,
+    netem: Option<String>,
+    rogue: Vec<PathBuf>,
+    local_forger_refused: Option<bool>,
+}
+
+/// A record's JSON lines.
+fn read_lines(p: &std::path::Path) -> Result<Vec<serde_json::Value>> {
+    std::fs::read_to_string(p)
+        .with_context(|| format!("reading {}", p.display()))?
+        .lines()
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| serde_json::from_str(l).with_context(|| format!("in {}: {l}", p.display())))
+        .collect()
+}
+
+/// The operator's summary line.
+fn summary_of(lines: &[serde_json::Value], p: &std::path::Path) -> Result<serde_json::Value> {
+    lines
+        .iter()
+        .find_map(|l| l.get("summary").cloned())
+        .with_context(|| {
+            format!(
+                "{}: the operator's record has no summary: it did not finish",
+                p.display()
+            )
+        })
+}
+
+/// The `time_ns` of the lines of `kind` (`stop`: sent by an operator, `mission`: reached the
+/// vehicle): a command's identity across the link.
+fn command_times(lines: &[serde_json::Value], kind: &str) -> std::collections::BTreeSet<u64> {
+    lines
+        .iter()
+        .filter_map(|l| l.get(kind)?.get("time_ns")?.as_u64())
+        .collect()
+}
+
+/// The demo's JSON from the records.
 fn report(
     vehicle: &std::path::Path,
     shore: &std::path::Path,
     link_up_ns: Option<u64>,
     stop_obeyed: bool,
+    conditions: Conditions,
     json: &std::path::Path,
 ) -> Result<()> {
-    let read = |p: &std::path::Path| -> Result<Vec<serde_json::Value>> {
-        std::fs::read_to_string(p)
-            .with_context(|| format!("reading {}", p.display()))?
-            .lines()
-            .filter(|l| !l.trim().is_empty())
-            .map(|l| serde_json::from_str(l).with_context(|| format!("in {}: {l}", p.display())))
-            .collect()
-    };
-    let arrivals = |lines: &[serde_json::Value]| -> Vec<Arrival> {
-        lines
-            .iter()
-            .filter_map(|l| serde_json::from_value(l.get("arrival")?.clone()).ok())
-            .collect()
-    };
-    let (v, s) = (read(vehicle)?, read(shore)?);
-    let (va, sa) = (arrivals(&v), arrivals(&s));
+    let (v, s) = (read_lines(vehicle)?, read_lines(shore)?);
+    let va: Vec<Arrival> = v
+        .iter()
+        .filter_map(|l| serde_json::from_value(l.get("arrival")?.clone()).ok())
+        .collect();
+    // The shore's arrivals, each with whether the operator showed it; the figures are those shown.
+    let judged: Vec<(Arrival, Judged)> = s
+        .iter()
+        .filter_map(|l| {
+            let a: Arrival = serde_json::from_value(l.get("arrival")?.clone()).ok()?;
+            let j = Judged {
+                epoch: l.get("epoch")?.as_u64()? as u32,
+                seq: a.seq,
+                shown: l.get("shown")?.as_bool()?,
+            };
+            Some((a, j))
+        })
+        .collect();
+    let sa: Vec<Arrival> = judged
+        .iter()
+        .filter(|(_, j)| j.shown)
+        .map(|(a, _)| *a)
+        .collect();
+    let order = shore_link::order(&judged.iter().map(|(_, j)| *j).collect::<Vec<_>>());
     let (sent, received_on_shore, latency_ms) = shore_link::link_figures(&va, &sa);
     let steps: Vec<(u64, u64)> = v
         .iter()
@@ -639,22 +1033,41 @@ fn report(
         .iter()
         .filter_map(|l| l.get("frame")?.get("seq")?.as_u64())
         .collect();
-    let summary = s
-        .iter()
-        .find_map(|l| l.get("summary").cloned())
-        .context("the operator's record has no summary: it did not finish")?;
+    let summary = summary_of(&s, shore)?;
     let outside = summary["outside_messages"].as_u64().unwrap_or(0)
         + summary["outside_services"]
             .as_array()
             .map_or(0, |a| a.len() as u64);
+    let reached = command_times(&v, "mission");
+    let rogues = conditions
+        .rogue
+        .iter()
+        .map(|p| {
+            let lines = read_lines(p)?;
+            let summary = summary_of(&lines, p)?;
+            let stops = command_times(&lines, "stop");
+            Ok(Rogue {
+                received: summary["received"].as_u64().unwrap_or(0),
+                stops_sent: stops.len() as u64,
+                stops_reached_vehicle: stops.intersection(&reached).count() as u64,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
     let report = Report {
+        security: conditions.security,
+        netem: conditions.netem,
         sent,
         received_on_shore,
+        received_share: received_on_shore as f64 / sent.max(1) as f64,
         latency_ms,
+        order,
         vehicle_steps_missed: shore_link::steps_missed(&frames, &steps, &sa),
         shore_back_after_s: link_up_ns.and_then(|t| shore_link::back_after(&sa, t)),
         outside_allow_list_seen: outside,
+        stops_reached_vehicle: command_times(&s, "stop").intersection(&reached).count() as u64,
         stop_obeyed,
+        rogues,
+        local_forger_refused: conditions.local_forger_refused,
         topics: shore_link::rates(&summary),
         link_bytes_per_s: summary["link_bytes"]
             .as_u64()

@@ -505,6 +505,7 @@ impl ArduSub {
             STATUSTEXT_DATA {
                 severity,
                 text: text.into(),
+                ..Default::default()
             },
         ))));
     }
@@ -825,6 +826,7 @@ impl ArduSub {
                     servo7_raw: 0,
                     servo8_raw: 0,
                     port: 0,
+                    ..Default::default()
                 })
             }
             _ => return false,
