@@ -1,6 +1,8 @@
-//! The stack's commands as the sticks of an autopilot's pilot (`scenario.toml [pilot]`): the one
-//! conversion the MAVLink adapter (which sends them as MANUAL_CONTROL) and the vehicle twin (whose
-//! autopilot takes the setpoints of its thruster topic) both use.
+//! The stack's commands as the sticks of an autopilot's pilot (`scenario.toml [pilot]`): the
+//! conversion the vehicle twin applies to the setpoints of its thruster topic (its autopilot takes
+//! them as MANUAL_CONTROL's axes), and the one a MAVLink companion must send for the vehicle to do
+//! what step one's model says. The `ardusub` thruster sink does not read `[pilot]` yet: it sends
+//! `command x 1000 / gain`, a command of 1 being the axis's full thrust.
 //!
 //! The allocator's setpoints become the generalised forces they make with the scenario's layout
 //! ([`ThrusterLayout::forces`]): each DOF's command as the behaviours and the surge rule gave it

@@ -23,9 +23,10 @@
 //! **The autopilot.** With `twin.toml [autopilot]` the thrusters are a stand-in ArduSub's motors
 //! ([`crate::ardusub`]), driven by its attitude loop at every sub-step of the plant from the pilot
 //! input it holds: the vehicle behind its autopilot, as the stack meets a BlueROV2. The pilot is
-//! the stack either way. On the twin's thruster topic ([`Twin::advance`]) the twin does what the
-//! MAVLink adapter does: it takes off in `scenario.toml [pilot]`'s mode and turns the setpoints
-//! answering a frame into the pilot's sticks (`model::pilot`); a failsafe stop is neutral sticks,
+//! the stack either way. On the twin's thruster topic ([`Twin::advance`]) the twin does what a
+//! MAVLink companion does: it takes off in `scenario.toml [pilot]`'s mode and turns the setpoints
+//! answering a frame into the pilot's sticks (`model::pilot`, with `[pilot]`'s fractions, which the
+//! `ardusub` thruster sink does not apply yet); a failsafe stop is neutral sticks,
 //! and the autopilot's own pilot-input failsafe replaces the thrusters' watchdog. Over MAVLink
 //! (`vehicle-twin --autopilot URL`, [`Twin::advance_piloted`]) the stack's side sends the sticks
 //! and commands itself. The plant is the vehicle's own model (`scenario.toml [model]`), at full
@@ -480,8 +481,8 @@ impl Twin {
         let now = a.at(time_s);
         if let Some(sp) = arrived {
             if !a.core.armed() {
-                // Taking off (or again, after the autopilot's failsafe disarmed it), as the
-                // MAVLink adapter does before it sends sticks.
+                // Taking off (or again, after the autopilot's failsafe disarmed it), as a
+                // MAVLink companion does before it sends sticks.
                 if let Err(e) = a.core.fly(a.pilot.mode.into())
                     && !a.piloting
                 {
@@ -603,8 +604,8 @@ impl Twin {
         });
         self.held.iter_mut().for_each(|h| *h = 0.0);
         if let Some(a) = &mut self.autopilot {
-            // The operator puts the vehicle back; the pilot's sticks stay as they were (the
-            // MAVLink adapter keeps sending its last ones until the next step's).
+            // The operator puts the vehicle back; the pilot's sticks stay as they were (a
+            // MAVLink companion keeps sending its last ones until the next step's).
             let v = ardusub::vehicle_of(self.plant.state(), &self.plant.pose_rate());
             a.core.repositioned(v);
         }
@@ -1034,8 +1035,8 @@ mod tests {
     }
 
     /// The same stack's commands reach the same vehicle whichever way they come: as setpoints on
-    /// the twin's thruster topic (the twin turns them into sticks and takes off itself) or as the
-    /// MAVLink adapter sends them (the mode and arming commands, then MANUAL_CONTROL with the same
+    /// the twin's thruster topic (the twin turns them into sticks and takes off itself) or as a
+    /// MAVLink companion sends them (the mode and arming commands, then MANUAL_CONTROL with the same
     /// conversion, received as frames from the ground station): the same motor outputs at every
     /// sub-step and the same frames, step for step.
     #[test]
