@@ -52,7 +52,7 @@ impl Simulator {
     /// A simulator of `scenario` whose resets draw from `seed`; call [`Simulator::reset`] to start.
     pub fn new(scenario: &Scenario, seed: u64) -> Self {
         Simulator {
-            dynamics: Dynamics::new(scenario.model.clone()),
+            dynamics: Dynamics::new(scenario.commanded_model()),
             layout: ThrusterLayout::new(&scenario.thrusters),
             camera: Camera::new(&scenario.camera),
             cable: Cable::new(&scenario.cable),

@@ -22,8 +22,12 @@ pub struct TwinParams {
     pub latency: LatencyParams,
     /// The twin camera's image: its own effects, harsher than the simulator's `[render]`.
     pub render: RenderParams,
-    /// The stand-in ArduSub autopilot (used with `vehicle-twin --autopilot URL`).
-    pub autopilot: crate::AutopilotParams,
+    /// The vehicle's autopilot, a stand-in ArduSub (`[autopilot]`): the thrusters are its motors,
+    /// whether the stack pilots it over MAVLink (`vehicle-twin --autopilot URL`) or through the
+    /// twin's thruster topic (the setpoints turned into its pilot's sticks, `scenario.toml
+    /// [pilot]`). Without it the thrusters take the setpoints themselves.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub autopilot: Option<crate::AutopilotParams>,
 }
 
 /// Trials, as on the real vehicle (paper section IV-B): a trial lasts `duration_s` of twin time or
@@ -223,7 +227,7 @@ impl Default for TwinParams {
             frames: FrameParams::default(),
             latency: LatencyParams::default(),
             render: TwinParams::default_render(),
-            autopilot: crate::AutopilotParams::default(),
+            autopilot: None,
         }
     }
 }
@@ -457,7 +461,10 @@ impl Validate for TwinParams {
         )?;
 
         self.render.validate(&join(key, "render"))?;
-        self.autopilot.validate(&join(key, "autopilot"))
+        match &self.autopilot {
+            Some(a) => a.validate(&join(key, "autopilot")),
+            None => Ok(()),
+        }
     }
 }
 
@@ -606,10 +613,30 @@ mod tests {
         let s: crate::Scenario = crate::load(&dir.join("scenario.toml")).unwrap();
         let _: crate::LearningParams = crate::load(&dir.join("learning.toml")).unwrap();
         assert!(!t.damping.enabled);
-        assert_eq!(t.autopilot.value("MAV_GCS_SYSID"), Some(255.0));
-        assert_eq!(t.autopilot.value("FS_PILOT_TIMEOUT"), Some(3.0));
+        let autopilot = t
+            .autopilot
+            .as_ref()
+            .expect("the BlueROV2 flies under ArduSub");
+        assert_eq!(autopilot.value("MAV_GCS_SYSID"), Some(255.0));
+        assert_eq!(autopilot.value("FS_PILOT_TIMEOUT"), Some(3.0));
         assert_eq!(s.thrusters.thruster.len(), 4);
         assert!(s.model.yaw.beta > 0.0 && s.model.sway.beta > 0.0);
+        // The stack's full commands: 0.5 m/s of sway and surge, 0.15 rad/s of yaw, within the
+        // joystick gain's reach; the autopilot it assumes is the twin's.
+        let pilot = s
+            .pilot
+            .as_ref()
+            .expect("the BlueROV2 is flown through ArduSub");
+        let m = s.commanded_model();
+        assert!((m.sway.steady_velocity(1.0) - 0.5).abs() < 0.002);
+        assert!((m.surge.steady_velocity(1.0) - 0.5).abs() < 0.002);
+        assert!((m.yaw.steady_velocity(1.0) - 0.15).abs() < 0.001);
+        let flown = autopilot.flown_by(pilot, "autopilot").unwrap();
+        assert_eq!(flown.value("ACRO_YAW_P"), Some(1.0));
+        assert_eq!(flown.value("RC4_DZ"), Some(0.0));
+        let gain = flown.value("JS_GAIN_DEFAULT").unwrap();
+        let f = pilot.fraction;
+        assert!(f.surge.max(f.sway).max(f.yaw) <= gain);
     }
 
     #[test]

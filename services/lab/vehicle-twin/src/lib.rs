@@ -24,4 +24,4 @@ pub mod plant;
 pub mod twin;
 
 pub use plant::{ThrusterModel, TwinPlant};
-pub use twin::{Shot, TrialEnd, Twin, TwinEye};
+pub use twin::{Autopilot, Shot, TrialEnd, Twin, TwinError, TwinEye};
