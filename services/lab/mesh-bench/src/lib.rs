@@ -29,6 +29,7 @@
 //! caches before any perceiving; `mesh-bench drill` ([`drill`]) runs the fault drill of the vehicle's
 //! safety layer.
 
+pub mod cuts;
 pub mod drill;
 pub mod probe;
 pub mod procfs;
