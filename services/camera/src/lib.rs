@@ -76,6 +76,7 @@ impl SimCamera {
             width: self.width,
             height: self.height,
             truth: self.truth(state),
+            ..Default::default()
         }
     }
 

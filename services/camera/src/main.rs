@@ -11,7 +11,7 @@ use camera::vehicle::{Publish, SeqMap, SourceSpec, VehicleCamera};
 use clap::Parser;
 use config::Eyes;
 use messages::{Endpoint, topics};
-use runtime::{CommonArgs, Flow, Runtime, Timer};
+use runtime::{CommonArgs, Flow, Input, Runtime, Timer};
 use std::convert::Infallible;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -27,9 +27,10 @@ struct Args {
     /// Sim endpoint: `ideal`: frames carry the geometric truth only; `images`: a rendered image too.
     #[arg(long, default_value = "ideal", value_name = "ideal|images")]
     eyes: Eyes,
-    /// Vehicle endpoint: the frame source, `twin` (the vehicle twin's camera) or `replay:DIR` (a
-    /// recorded dive) [default: twin].
-    #[arg(long, value_name = "twin|replay:DIR")]
+    /// Vehicle endpoint: the frame source, `twin` (the vehicle twin's camera), `replay:DIR` (a
+    /// recorded dive) or `rtp:ADDR:PORT` (an RTP/H.264 stream, e.g. `rtp:0.0.0.0:5600` for a
+    /// BlueROV2's camera; built with `--features video`) [default: twin].
+    #[arg(long, value_name = "twin|replay:DIR|rtp:ADDR:PORT")]
     source: Option<SourceSpec>,
     /// Vehicle endpoint, replay: play the dive K times faster than recorded.
     #[arg(long, value_name = "K")]
@@ -91,19 +92,26 @@ fn serve_vehicle(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
             let speed = args.speed.unwrap_or(1.0);
             Box::new(ReplaySource::open(dir, Pacing::Speed(speed))?)
         }
+        SourceSpec::Rtp(addr) => {
+            if args.speed.is_some() {
+                anyhow::bail!("--speed paces a replay; a live stream's pace is the camera's own");
+            }
+            rtp_source(*addr, c.width, c.height)?
+        }
     };
     let clock = *rt.clock();
     let mut camera = VehicleCamera::new((c.width, c.height), SeqMap::new(0), clock.new_epoch());
     camera.check(source.as_ref()).map_err(anyhow::Error::msg)?;
     let frames = rt.frame_outbox()?;
     let (inputs, timer) = match source.wake() {
-        Wake::Listener(l) => (vec![l], Timer::Timeout(QUIET_NOTE)),
+        Wake::Listener(l) => (vec![Input::Listener(l)], Timer::Timeout(QUIET_NOTE)),
+        Wake::Readable(fd) => (vec![Input::Readable(fd)], Timer::Timeout(QUIET_NOTE)),
         Wake::Every(period) => (Vec::new(), Timer::Interval(period)),
     };
     tracing::info!(source = %source.describe(), epoch = camera.epoch(), "ready");
     let mut frame = Frame::default();
     let mut last_frame = Instant::now();
-    rt.serve(&inputs, timer, |_| {
+    rt.serve_inputs(&inputs, timer, |_| {
         // Every frame due now, in order: the mesh answers each step once.
         loop {
             let now = Instant::now();
@@ -138,4 +146,28 @@ fn serve_vehicle(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
         }
     })?;
     Ok(())
+}
+
+/// The RTP/H.264 source on `addr`, frames scaled to the scenario's camera.
+#[cfg(feature = "video")]
+fn rtp_source(
+    addr: std::net::SocketAddr,
+    width: u32,
+    height: u32,
+) -> anyhow::Result<Box<dyn FrameSource>> {
+    let config = video::source::SourceConfig::new(addr, width, height);
+    Ok(Box::new(video::source::RtpSource::open(config)?))
+}
+
+#[cfg(not(feature = "video"))]
+fn rtp_source(
+    addr: std::net::SocketAddr,
+    _width: u32,
+    _height: u32,
+) -> anyhow::Result<Box<dyn FrameSource>> {
+    anyhow::bail!(
+        "--source rtp:{addr}: this camera was built without the RTP/H.264 video path; install \
+         GStreamer (scripts/install-gstreamer) and build it with `cargo build --release -p camera \
+         --features video`"
+    )
 }

@@ -19,6 +19,7 @@
 
 use adapters::{FrameMeta, FrameSource, Read};
 use messages::{CameraFrameHeader, Stamp};
+use std::net::SocketAddr;
 use std::path::PathBuf;
 
 /// Which frame source the vehicle's camera reads.
@@ -28,20 +29,30 @@ pub enum SourceSpec {
     Twin,
     /// A recorded dive in this directory (`adapters::replay`).
     Replay(PathBuf),
+    /// An RTP/H.264 stream received on this address (a BlueROV2's camera as BlueOS sends it, or
+    /// the twin's with `--video`): `video::source`, built with the `video` feature.
+    Rtp(SocketAddr),
 }
 
 impl std::str::FromStr for SourceSpec {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "twin" => Ok(SourceSpec::Twin),
-            _ => match s.strip_prefix("replay:") {
-                Some(dir) if !dir.is_empty() => Ok(SourceSpec::Replay(PathBuf::from(dir))),
-                _ => Err(format!(
-                    "unknown frame source `{s}` (expected `twin` or `replay:DIR`)"
-                )),
-            },
+        if s == "twin" {
+            return Ok(SourceSpec::Twin);
         }
+        if let Some(dir) = s.strip_prefix("replay:")
+            && !dir.is_empty()
+        {
+            return Ok(SourceSpec::Replay(PathBuf::from(dir)));
+        }
+        if let Some(addr) = s.strip_prefix("rtp:") {
+            return addr.parse().map(SourceSpec::Rtp).map_err(|e| {
+                format!("frame source `{s}`: `{addr}` is not an ADDR:PORT to listen on ({e})")
+            });
+        }
+        Err(format!(
+            "unknown frame source `{s}` (expected `twin`, `replay:DIR` or `rtp:ADDR:PORT`)"
+        ))
     }
 }
 
@@ -85,8 +96,15 @@ pub fn header(meta: &FrameMeta, seq: u64, epoch: u32, clock_ns: u64) -> CameraFr
             .timed(epoch, clock_ns),
         width: meta.width,
         height: meta.height,
+        // A damaged image (lost video data) is marked: perception does not track on it.
+        flags: if meta.damaged {
+            CameraFrameHeader::DAMAGED
+        } else {
+            0
+        },
         // The truth is passed on where the source knows it (ideal perception can use it).
         truth: meta.truth.unwrap_or_default(),
+        ..Default::default()
     }
 }
 
@@ -193,6 +211,7 @@ mod tests {
                 x_g: 0.1,
                 ..Default::default()
             }),
+            damaged: false,
         }
     }
 
@@ -205,6 +224,23 @@ mod tests {
         );
         assert!("replay:".parse::<SourceSpec>().is_err());
         assert!("usb0".parse::<SourceSpec>().is_err());
+        assert_eq!(
+            "rtp:0.0.0.0:5600".parse(),
+            Ok(SourceSpec::Rtp("0.0.0.0:5600".parse().unwrap()))
+        );
+        assert_eq!(
+            "rtp:[::1]:5602".parse(),
+            Ok(SourceSpec::Rtp("[::1]:5602".parse().unwrap()))
+        );
+        for bad in [
+            "rtp:",
+            "rtp:5600",
+            "rtp:localhost:5600",
+            "rtp:1.2.3.4:99999",
+        ] {
+            let e = bad.parse::<SourceSpec>().unwrap_err();
+            assert!(e.contains(bad), "{e}");
+        }
     }
 
     /// The source's gaps stay gaps; a device restart does not make `seq` go back.
@@ -244,6 +280,9 @@ mod tests {
         assert_eq!(cam.on_read(Read::End, &m, 9_700), Publish::End);
         let unknown = FrameMeta { truth: None, ..m };
         assert_eq!(header(&unknown, 1, 42, 1).truth.found, 0);
+        assert!(!h.is_damaged());
+        let damaged = FrameMeta { damaged: true, ..m };
+        assert!(header(&damaged, 1, 42, 1).is_damaged());
         assert_eq!(cam.published(), 1);
     }
 }

@@ -262,3 +262,22 @@ fn a_missing_dive_and_a_source_on_the_sim_endpoint_are_refused() {
         camera.log()
     );
 }
+
+/// Built without the video path, the camera refuses an RTP source and says how to build it.
+#[cfg(not(feature = "video"))]
+#[test]
+fn an_rtp_source_needs_the_video_feature() {
+    let ns = Namespace::new("camr");
+    let mut camera = Process::start(
+        &ns,
+        &testkit::binary("camera"),
+        &["--endpoint", "vehicle", "--source", "rtp:127.0.0.1:5600"],
+    );
+    let status = camera.wait(T).expect("it exits");
+    assert!(!status.success());
+    let log = camera.log();
+    assert!(
+        log.contains("rtp:127.0.0.1:5600") && log.contains("--features video"),
+        "a clear error:\n{log}"
+    );
+}

@@ -11,7 +11,9 @@
 //! A frame perception cannot use (an image of another size than the header says, or than the camera
 //! makes: a truncated frame) is refused with the reason, and the tracker is left as it was: the
 //! step stays unanswered (an intact copy of it can still be perceived), and the loop goes on with
-//! the next frame. The truth passed on by ideal perception is put under the rule for bad values
+//! the next frame. A frame marked damaged (`CameraFrameHeader::DAMAGED`: compressed video decoded
+//! with data missing) is not tracked on: the tracker coasts on its prediction, as for a frame
+//! without the cable, and loses the cable after `coast_frames` of them. The truth passed on by ideal perception is put under the rule for bad values
 //! (`CableObservationData::bounded`) and what it changed is reported ([`Observed::fixes`]).
 
 use config::{Eyes, ObservationLimits, Scenario};
@@ -101,7 +103,12 @@ impl Observer {
             Some(l) if stamp.time_ns > l.time_ns => (stamp.time_ns - l.time_ns) as f64 / 1e9,
             _ => self.sample_time_s,
         };
-        let obs = tracker.process(view, dt)?;
+        // A damaged image (video data lost) is not looked at: the track coasts on its prediction.
+        let obs = if header.is_damaged() {
+            tracker.coast(dt)
+        } else {
+            tracker.process(view, dt)?
+        };
         self.last = Some(stamp);
         Ok(Observed {
             msg: CableObservationMsg {
@@ -129,6 +136,7 @@ mod tests {
                 x_g: -0.1,
                 ..Default::default()
             },
+            ..Default::default()
         }
     }
 
@@ -153,6 +161,49 @@ mod tests {
         assert_eq!(got.msg.observation.x_g, 0.0);
         assert_eq!(got.msg.observation.theta, std::f64::consts::FRAC_PI_2);
         assert_eq!((got.fixes.non_finite, got.fixes.clamped), (1, 1));
+    }
+
+    /// A damaged frame's image is not looked at: the observation is the tracker's coast, what a
+    /// frame without the cable gives, not what the image shows.
+    #[test]
+    fn a_damaged_frame_is_not_tracked_on() {
+        let scenario = Scenario::default();
+        let mut renderer = vision::Renderer::from_scenario(&scenario, 5).unwrap();
+        let still = model::PoseRate::default();
+        let at = |y| model::Pose {
+            x: 0.0,
+            y,
+            psi: 0.05,
+        };
+        let here = renderer.render_frame(&at(0.0), &still, 0);
+        let there = renderer.render_frame(&at(0.15), &still, 1);
+        let blank = vec![0u8; 320 * 240];
+        let mut seen = Vec::new();
+        for second in [there.data(), &blank[..], there.data()] {
+            let mut o = Observer::new(&scenario, Eyes::Images).unwrap();
+            let first = o.observe(&header(1, 0, 0), here.data()).unwrap();
+            assert_eq!(first.msg.observation.found, 1);
+            let mut h = header(2, 0, 1);
+            if seen.len() == 2 {
+                h.flags = CameraFrameHeader::DAMAGED;
+            }
+            seen.push(o.observe(&h, second).unwrap().msg.observation);
+        }
+        let (moved, missed, damaged) = (seen[0], seen[1], seen[2]);
+        assert_eq!(
+            damaged, missed,
+            "a damaged frame coasts like one without the cable"
+        );
+        assert!(damaged.confidence < 1.0 && damaged.found == 1);
+        assert!(
+            (moved.x_g - damaged.x_g).abs() > 0.05,
+            "the damaged image was not looked at: {moved:?} vs {damaged:?}"
+        );
+        // Ideal eyes pass the truth on whatever the image.
+        let mut ideal = Observer::new(&scenario, Eyes::Ideal).unwrap();
+        let mut h = header(3, 0, 2);
+        h.flags = CameraFrameHeader::DAMAGED;
+        assert_eq!(ideal.observe(&h, &[]).unwrap().msg.observation, h.truth);
     }
 
     #[test]

@@ -27,6 +27,7 @@ fn header(seq: u64, step: u32, truth: CableObservationData) -> CameraFrameHeader
         width: W as u32,
         height: H as u32,
         truth,
+        ..Default::default()
     }
 }
 

@@ -16,10 +16,10 @@ use adapters::failsafe::{Failsafe, Thrust};
 use adapters::{AdapterError, Applied, StopCause, ThrusterSink};
 use messages::ThrusterSetpoints;
 use runtime::lockstep::{Refusal, Screen, Verdict};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// Which thruster sink the driver owns.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum SinkSpec {
     /// The vehicle twin's thrusters (`cabletrack/twin/thrusters`).
     Twin,
@@ -27,6 +27,9 @@ pub enum SinkSpec {
     Record(std::path::PathBuf),
     /// Nothing (the checks and the failsafe still run).
     Null,
+    /// A vehicle under ArduSub, piloted over MAVLink (`ardusub:URL?OPTIONS`, see the `ardusub`
+    /// crate).
+    ArduSub(Box<ardusub::Spec>),
 }
 
 impl std::str::FromStr for SinkSpec {
@@ -35,10 +38,11 @@ impl std::str::FromStr for SinkSpec {
         match s {
             "twin" => Ok(SinkSpec::Twin),
             "null" => Ok(SinkSpec::Null),
-            _ => match s.strip_prefix("record:") {
-                Some(file) if !file.is_empty() => Ok(SinkSpec::Record(file.into())),
+            _ => match (s.strip_prefix("record:"), s.strip_prefix("ardusub:")) {
+                (Some(file), _) if !file.is_empty() => Ok(SinkSpec::Record(file.into())),
+                (_, Some(spec)) => Ok(SinkSpec::ArduSub(Box::new(spec.parse()?))),
                 _ => Err(format!(
-                    "unknown thruster sink `{s}` (expected `twin`, `record:FILE` or `null`)"
+                    "unknown thruster sink `{s}` (expected `twin`, `record:FILE`, `ardusub:URL` or `null`)"
                 )),
             },
         }
@@ -132,6 +136,12 @@ impl<S: ThrusterSink> Driver<S> {
         stamp.is_timed()
             && stamp.clock_ns <= now_ns
             && now_ns - stamp.clock_ns < self.deadline().as_nanos() as u64
+    }
+
+    /// The sink's periodic work (a link's heartbeat, a command held at its rate), done now;
+    /// returns when it wants to be serviced next.
+    pub fn service(&mut self, now: Instant) -> Result<Option<Instant>, AdapterError> {
+        self.failsafe.sink_mut().service(now)
     }
 
     /// Time passed: the stop made now if the setpoints held went stale.
@@ -283,5 +293,14 @@ mod tests {
         );
         assert!("record:".parse::<SinkSpec>().is_err());
         assert!("can0".parse::<SinkSpec>().is_err());
+        match "ardusub:udpout:192.168.2.2:14550?rate=25".parse() {
+            Ok(SinkSpec::ArduSub(spec)) => {
+                assert_eq!(spec.url, ardusub::Url::UdpOut("192.168.2.2:14550".into()));
+                assert_eq!(spec.options.rate_hz, 25.0);
+            }
+            other => panic!("{other:?}"),
+        }
+        let bad = "ardusub:udpout:192.168.2.2:14550?sysid=255".parse::<SinkSpec>();
+        assert!(bad.is_err_and(|e| e.contains("sysid=255")));
     }
 }

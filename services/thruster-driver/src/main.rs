@@ -6,12 +6,14 @@
 use adapters::ThrusterSink;
 use adapters::record::{NullSink, RecordSink};
 use adapters::twin::TwinThrusterSink;
+use ardusub::{ArduSubSink, Publishers};
 use clap::Parser;
 use messages::{Endpoint, topics};
+use model::ThrusterLayout;
 use runtime::lockstep::{Screen, ScreenLimits};
 use runtime::{BadValues, CommonArgs, Runtime, Watch};
 use std::process::ExitCode;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// How much before the deadline the driver acts on it: a wait's timeout ends up to a millisecond
 /// late, and a failsafe that errs should err early.
@@ -27,8 +29,14 @@ struct Args {
     #[command(flatten)]
     common: CommonArgs,
     /// The thruster sink: `twin` (the vehicle twin's thrusters), `record:FILE` (a file of setpoints
-    /// and stops with their times) or `null`.
-    #[arg(long, default_value = "twin", value_name = "twin|record:FILE|null")]
+    /// and stops with their times), `ardusub:URL[?OPTIONS]` (a vehicle under ArduSub, piloted over
+    /// MAVLink: URL `udpout:HOST:PORT`, `udpin:ADDR:PORT` or `tcpout:HOST:PORT`; OPTIONS
+    /// `sysid=254&compid=191&rate=20&mode=manual|stabilize|alt_hold&arm=auto|manual`) or `null`.
+    #[arg(
+        long,
+        default_value = "twin",
+        value_name = "twin|record:FILE|ardusub:URL|null"
+    )]
     sink: SinkSpec,
     /// Setpoints go stale, and the thrusters stop, once their step is older than this [default: two
     /// sample periods].
@@ -46,6 +54,19 @@ fn open_sink(rt: &Runtime, spec: &SinkSpec) -> anyhow::Result<Box<dyn ThrusterSi
             Box::new(RecordSink::create(path, &names)?)
         }
         SinkSpec::Null => Box::new(NullSink::new(thrusters.len())?),
+        SinkSpec::ArduSub(spec) => {
+            // The autopilot's telemetry topics first: a second driver stops there, before it
+            // touches the autopilot.
+            let clock = *rt.clock();
+            let publishers = Publishers::open(rt.node(), rt.endpoint(), move || clock.now_ns())?;
+            let layout = ThrusterLayout::new(&rt.scenario().thrusters);
+            Box::new(ArduSubSink::open(
+                spec,
+                layout,
+                runtime::restarts() > 0,
+                Some(publishers),
+            )?)
+        }
     })
 }
 
@@ -118,9 +139,20 @@ fn main() -> ExitCode {
             if driver.on_time(clock.now_ns() + EARLY.as_nanos() as u64)?.is_some() {
                 tracing::warn!(cause = "deadline", deadline_ms = deadline.as_millis() as u64, "thrusters stopped: no fresh setpoints within the deadline");
             }
-            // Woken again EARLY before the setpoints held go stale.
+            // The sink's own work (ArduSub's steady stick and heartbeat) from this thread alone: if
+            // the driver hangs, the sink falls silent too.
+            let now = Instant::now();
+            let service = match driver.service(now) {
+                Ok(at) => at.map(|at| at.saturating_duration_since(now)),
+                Err(e) => {
+                    tracing::error!("the thruster sink's periodic work failed: {e}");
+                    None
+                }
+            };
+            // Woken again EARLY before the setpoints held go stale, or when the sink asks.
             let left = driver.time_left(clock.now_ns()).unwrap_or(deadline);
-            Ok(Some(left.saturating_sub(EARLY)))
+            let wake = left.saturating_sub(EARLY);
+            Ok(Some(service.map_or(wake, |s| s.min(wake))))
         });
         let closed = driver.shutdown();
         match &closed {

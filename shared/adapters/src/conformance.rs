@@ -52,6 +52,45 @@ pub trait SinkRig {
     /// What reached the thrusters since the last call, in order (called after a flush or a
     /// close); `None` when the sink's output cannot be seen (a null sink).
     fn received(&mut self, sink: &mut Self::Sink) -> Option<Vec<Arrived>>;
+    /// What arrives on this device for `sent` (the setpoints and stamp a write or stop gave the
+    /// last sink opened): by default `sent` itself. A device whose wire carries something else
+    /// says so here: ArduSub's pilot input carries the three forces the layout's setpoints make,
+    /// and of the stamp only what its lockstep tag carries.
+    fn as_arrives(&self, sent: &Arrived) -> Arrived {
+        sent.clone()
+    }
+    /// How far an arriving value may lie from [`SinkRig::as_arrives`]'s: the device's resolution
+    /// (0: exactly; ArduSub's pilot input has steps of 1/1000 of full thrust).
+    fn resolution(&self) -> f64 {
+        0.0
+    }
+}
+
+/// Checks that `got` is what `sent` arrives as on the rig's device ([`SinkRig::as_arrives`]),
+/// values within its resolution.
+fn expect<R: SinkRig>(rig: &R, name: &str, got: &[Arrived], sent: &[Arrived], what: &str) {
+    let want: Vec<Arrived> = sent.iter().map(|a| rig.as_arrives(a)).collect();
+    let close = |a: &[f64], b: &[f64]| {
+        a.len() == b.len()
+            && a.iter()
+                .zip(b)
+                .all(|(x, y)| (x - y).abs() <= rig.resolution())
+    };
+    let same = got.len() == want.len()
+        && got
+            .iter()
+            .zip(&want)
+            .all(|(g, w)| g.stamp == w.stamp && g.stop == w.stop && close(&g.values, &w.values));
+    assert!(same, "{name}: {what}: arrived {got:?}, expected {want:?}");
+}
+
+/// A step's setpoints as they were written.
+fn written(stamp: Stamp, values: &[f64]) -> Arrived {
+    Arrived {
+        stamp,
+        values: values.to_vec(),
+        stop: None,
+    }
 }
 
 /// What reached the thrusters: a step's setpoints, or a stop.
@@ -121,6 +160,7 @@ fn frame(
             confidence: if status != StepStatus::Lost { 1.0 } else { 0.0 },
             ..Default::default()
         }),
+        damaged: false,
     };
     let image = (0..meta.len())
         .map(|i| ((i as u64 * 7 + seq * 31) % 251) as u8)
@@ -367,7 +407,8 @@ pub fn frame_source<R: SourceRig>(rig: &mut R) {
     }
 }
 
-/// The thruster-sink suite.
+/// The thruster-sink suite. "Arrives" is as the rig's device carries it ([`SinkRig::as_arrives`],
+/// within [`SinkRig::resolution`]): exactly what was sent, unless the device says otherwise.
 ///
 /// - A sink has the thrusters it was opened for; 0 or more than `MAX_THRUSTERS` is refused.
 /// - Setpoints within [-1, 1] arrive unchanged, with their stamp, in order.
@@ -411,10 +452,12 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
     sink.flush()
         .unwrap_or_else(|e| panic!("{name}: flush: {e}"));
     if let Some(got) = rig.received(&mut sink) {
-        assert_eq!(
-            got,
-            vec![Arrived::stop(Stamp::default(), 3, StopCause::Start)],
-            "{name}: a stop before any write"
+        expect(
+            rig,
+            &name,
+            &got,
+            &[Arrived::stop(Stamp::default(), 3, StopCause::Start)],
+            "a stop before any write",
         );
     }
 
@@ -442,10 +485,13 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
         sink.flush()
             .unwrap_or_else(|e| panic!("{name}: flush: {e}"));
         if let Some(got) = rig.received(&mut sink) {
-            assert_eq!(got.len(), 1, "{name}: one write, one arrival");
-            assert_eq!(got[0].stamp, st, "{name}: the stamp arrives unchanged");
-            assert_eq!(got[0].values, want, "{name}: what arrives for {given:?}");
-            assert_eq!(got[0].stop, None, "{name}: a write is not a stop");
+            expect(
+                rig,
+                &name,
+                &got,
+                &[written(st, want)],
+                &format!("one write of {given:?}, with its stamp"),
+            );
             assert!(
                 got[0]
                     .values
@@ -477,27 +523,28 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
         .map(|s| stamp(s, StepStatus::Running))
         .chain([stamp(64, StepStatus::Lost)])
         .collect();
-    for (k, st) in burst.iter().enumerate() {
-        sink.write(st, &[0.1 * k as f64, -0.1, 0.0])
+    let burst_sent: Vec<Arrived> = burst
+        .iter()
+        .enumerate()
+        .map(|(k, st)| written(*st, &[0.1 * k as f64, -0.1, 0.0]))
+        .collect();
+    for (st, sent) in burst.iter().zip(&burst_sent) {
+        sink.write(st, &sent.values)
             .unwrap_or_else(|e| panic!("{name}: write: {e}"));
+        let k = st.seq - burst[0].seq;
         if k == 1 {
             // Sinks with a small window must be read as they go: the rig sees them after a flush.
             sink.flush()
                 .unwrap_or_else(|e| panic!("{name}: flush: {e}"));
             if let Some(got) = rig.received(&mut sink) {
-                assert_eq!(got.iter().map(|g| g.stamp).collect::<Vec<_>>(), burst[..2]);
+                expect(rig, &name, &got, &burst_sent[..2], "the burst's start");
             }
         }
     }
     sink.flush()
         .unwrap_or_else(|e| panic!("{name}: flush: {e}"));
     if let Some(got) = rig.received(&mut sink) {
-        assert_eq!(
-            got.iter().map(|g| g.stamp).collect::<Vec<_>>(),
-            burst[2..],
-            "{name}: the burst's order"
-        );
-        assert_eq!(got[2].values, vec![0.4, -0.1, 0.0]);
+        expect(rig, &name, &got, &burst_sent[2..], "the burst's order");
     }
 
     // A stop after writes: zeros, with the last step's stamp and the cause.
@@ -507,10 +554,12 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
     sink.flush()
         .unwrap_or_else(|e| panic!("{name}: flush: {e}"));
     if let Some(got) = rig.received(&mut sink) {
-        assert_eq!(
-            got,
-            vec![Arrived::stop(last, 3, StopCause::AllocatorDead)],
-            "{name}: a stop after writes"
+        expect(
+            rig,
+            &name,
+            &got,
+            &[Arrived::stop(last, 3, StopCause::AllocatorDead)],
+            "a stop after writes",
         );
     }
 
@@ -523,17 +572,15 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
     sink.close()
         .unwrap_or_else(|e| panic!("{name}: a second close must succeed: {e}"));
     if let Some(got) = rig.received(&mut sink) {
-        assert_eq!(
-            got,
-            vec![
-                Arrived {
-                    stamp: st,
-                    values: vec![0.3; 3],
-                    stop: None
-                },
-                Arrived::stop(st, 3, StopCause::Shutdown)
+        expect(
+            rig,
+            &name,
+            &got,
+            &[
+                written(st, &[0.3; 3]),
+                Arrived::stop(st, 3, StopCause::Shutdown),
             ],
-            "{name}: close stops the thrusters, once"
+            "close stops the thrusters, once",
         );
     }
     match sink.write(&stamp(71, StepStatus::Running), &[0.0; 3]) {
@@ -562,10 +609,12 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
     sink.close()
         .unwrap_or_else(|e| panic!("{name}: close: {e}"));
     if let Some(got) = rig.received(&mut sink) {
-        assert_eq!(
-            got,
-            vec![Arrived::stop(st, 3, StopCause::Deadline)],
-            "{name}: a close after a stop"
+        expect(
+            rig,
+            &name,
+            &got,
+            &[Arrived::stop(st, 3, StopCause::Deadline)],
+            "a close after a stop",
         );
     }
     drop(sink);
@@ -587,17 +636,15 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
         .unwrap_or_else(|e| panic!("{name}: failsafe write: {e}"));
     let seen = |rig: &mut R, failsafe: &mut Failsafe<R::Sink>| rig.received(failsafe.sink_mut());
     if let Some(got) = seen(rig, &mut failsafe) {
-        assert_eq!(
-            got,
-            vec![
+        expect(
+            rig,
+            &name,
+            &got,
+            &[
                 Arrived::stop(Stamp::default(), 3, StopCause::Start),
-                Arrived {
-                    stamp: st,
-                    values: vec![0.6, -0.6, 0.2],
-                    stop: None
-                }
+                written(st, &[0.6, -0.6, 0.2]),
             ],
-            "{name}: the failsafe starts at rest, then writes"
+            "the failsafe starts at rest, then writes",
         );
     }
     for at in [t0 + 100 * ms, t0 + 399 * ms] {
@@ -626,10 +673,12 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
         "{name}: once"
     );
     if let Some(got) = seen(rig, &mut failsafe) {
-        assert_eq!(
-            got,
-            vec![Arrived::stop(st, 3, StopCause::Deadline)],
-            "{name}: zero at the deadline"
+        expect(
+            rig,
+            &name,
+            &got,
+            &[Arrived::stop(st, 3, StopCause::Deadline)],
+            "zero at the deadline",
         );
     }
     let st = stamp(85, StepStatus::Running);
@@ -640,10 +689,15 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
         .close()
         .unwrap_or_else(|e| panic!("{name}: failsafe close: {e}"));
     if let Some(got) = seen(rig, &mut failsafe) {
-        assert_eq!(
-            got.iter().map(|g| g.stop).collect::<Vec<_>>(),
-            vec![None, Some(StopCause::Shutdown)],
-            "{name}: setpoints again, then zero on close"
+        expect(
+            rig,
+            &name,
+            &got,
+            &[
+                written(st, &[0.1, 0.1, 0.1]),
+                Arrived::stop(st, 3, StopCause::Shutdown),
+            ],
+            "setpoints again, then zero on close",
         );
     }
     drop(failsafe);
@@ -669,12 +723,15 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
         sink.flush()
             .unwrap_or_else(|e| panic!("{name}: flush: {e}"));
         if let Some(got) = rig.received(&mut sink) {
-            assert_eq!(got.len(), 2, "{name}: {n} thrusters");
-            assert_eq!(got[0].values, want, "{name}: {n} thrusters");
-            assert_eq!(
-                got[1],
-                Arrived::stop(st, n, StopCause::Deadline),
-                "{name}: {n} thrusters stop"
+            expect(
+                rig,
+                &name,
+                &got,
+                &[
+                    written(st, &want),
+                    Arrived::stop(st, n, StopCause::Deadline),
+                ],
+                &format!("{n} thrusters: a write and a stop"),
             );
         }
         sink.close()

@@ -27,6 +27,7 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::ipc;
 pub use messages::{CableObservationData, Stamp, StepStatus, StopCause};
 use model::bounds::Fixes;
+use std::os::fd::BorrowedFd;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -50,6 +51,10 @@ pub struct FrameMeta {
     /// The cable's true line in this frame, where the source knows it (the twin does; a dive when it
     /// was recorded from the twin); `None` otherwise.
     pub truth: Option<CableObservationData>,
+    /// The image is not whole: a compressed video frame decoded with data missing (a lost packet in
+    /// it, or in a frame it references since the last keyframe) or with a decoder error. The rest of
+    /// the metadata is sound; the image must not be trusted (perception does not track on it).
+    pub damaged: bool,
 }
 
 impl Default for FrameMeta {
@@ -63,6 +68,7 @@ impl Default for FrameMeta {
             step: 0,
             status: StepStatus::Running,
             truth: None,
+            damaged: false,
         }
     }
 }
@@ -95,7 +101,8 @@ pub enum Read {
     /// the caller's frame holds it again; publish it again so that whoever missed it can answer.
     Repeat,
     /// No frame yet: read again after `until` (a paced recording), or when the source's listener is
-    /// notified ([`Wake::Listener`], `until` is `None`).
+    /// notified or its descriptor readable ([`Wake::Listener`], [`Wake::Readable`]: `until` is
+    /// `None`).
     Pending { until: Option<Instant> },
     /// The source has no more frames (the end of a recording). Live sources never end.
     End,
@@ -107,6 +114,10 @@ pub enum Wake<'a> {
     Listener(&'a Listener<ipc::Service>),
     /// Read again at this period (the source's pace); frames due within half a period are yielded.
     Every(Duration),
+    /// Block until this file descriptor is readable: the source's own thread signals it (an
+    /// eventfd) when a frame or an error is ready. `read` clears it, so a reader reads after every
+    /// wake-up, until `Pending`.
+    Readable(BorrowedFd<'a>),
 }
 
 /// Where a source's frame counter comes from, which tells a reader how to keep its own sequence
@@ -237,6 +248,13 @@ pub trait ThrusterSink {
     /// Stops the thrusters ([`StopCause::Shutdown`]) unless the last thing sent was a stop, flushes
     /// and releases the device; later writes are refused.
     fn close(&mut self) -> Result<(), AdapterError>;
+    /// Periodic work of a device that needs some between writes (a link's own heartbeat, a command
+    /// repeated at a fixed rate, replies to read): done now, at `now`; returns when to be serviced
+    /// next (`None`: only when written to). Called from the thread that writes, so a writer that
+    /// hangs stops the device's traffic too. Nothing by default.
+    fn service(&mut self, _now: Instant) -> Result<Option<Instant>, AdapterError> {
+        Ok(None)
+    }
 }
 
 /// A sink chosen at run time (`Box<dyn ThrusterSink>`) is a sink.
@@ -258,6 +276,9 @@ impl<S: ThrusterSink + ?Sized> ThrusterSink for Box<S> {
     }
     fn close(&mut self) -> Result<(), AdapterError> {
         (**self).close()
+    }
+    fn service(&mut self, now: Instant) -> Result<Option<Instant>, AdapterError> {
+        (**self).service(now)
     }
 }
 
@@ -288,6 +309,14 @@ pub enum AdapterError {
     BadFrame {
         adapter: String,
         seq: u64,
+        reason: String,
+    },
+    /// A live source received packets it cannot use (not its protocol, truncated, another
+    /// stream's): `count` of them since the last report, the first one's `reason`.
+    #[error("{adapter}: {count} packet(s) refused: {reason}")]
+    BadPacket {
+        adapter: String,
+        count: u64,
         reason: String,
     },
     /// A frame of another size than the source's.
@@ -336,6 +365,14 @@ pub enum AdapterError {
     },
     #[error("{adapter}: closed")]
     Closed { adapter: String },
+    /// A device's own failure (a link that broke, a controller that refused a command), with its
+    /// typed error.
+    #[error("{adapter}: {source}")]
+    Device {
+        adapter: String,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
 }
 
 #[cfg(test)]

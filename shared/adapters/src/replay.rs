@@ -449,6 +449,7 @@ fn parse_entry(line: &str, width: u32, height: u32, truth: bool) -> Result<Entry
             step: small(3, "step")?,
             status,
             truth,
+            damaged: false,
         },
         file,
     })

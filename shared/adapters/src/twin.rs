@@ -33,7 +33,13 @@ pub fn header(meta: &FrameMeta) -> CameraFrameHeader {
         stamp: Stamp::new(meta.seq, meta.time_ns, meta.trial, meta.step, meta.status),
         width: meta.width,
         height: meta.height,
+        flags: if meta.damaged {
+            CameraFrameHeader::DAMAGED
+        } else {
+            0
+        },
         truth: meta.truth.unwrap_or_default(),
+        ..Default::default()
     }
 }
 
@@ -209,6 +215,7 @@ fn accept(
         step: h.stamp.step,
         status,
         truth: Some(h.truth),
+        damaged: h.is_damaged(),
     };
     out.image.clear();
     out.image.extend_from_slice(data);

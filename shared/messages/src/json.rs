@@ -332,6 +332,8 @@ mod tests {
             stamp,
             width: 320,
             height: 240,
+            flags: CameraFrameHeader::DAMAGED,
+            _reserved: [0; 4],
             truth: obs(),
         });
         round_trip(&CableObservationMsg {

@@ -21,7 +21,10 @@
 //! Setpoints are either a step's answer or a failsafe stop ([`ThrusterSetpoints::stop`],
 //! [`StopCause`]): the thruster driver's, which drives the thrusters to 0. Beside the loop, the
 //! supervisor reports what happens to the services ([`SupervisorEvent`]) and the flight recorder its
-//! progress ([`RecorderStatus`]); these belong to no step and carry the wall clock instead.
+//! progress ([`RecorderStatus`]); these belong to no step and carry the wall clock instead. On a
+//! vehicle piloted through an ArduSub autopilot, the thruster driver publishes the autopilot's
+//! telemetry ([`AutopilotState`], [`AutopilotAttitude`], [`AutopilotDepth`], [`ServoOutputs`],
+//! [`StatusText`], topics `autopilot/...`): no step's either, timed by the vehicle clock.
 //!
 //! Below the endpoints lies the hardware level ([`topics::hardware`]): the vehicle twin's camera and
 //! thrusters, `cabletrack/twin/<topic>`, reached only through the vehicle endpoint's adapters.
@@ -35,9 +38,10 @@ pub mod ports;
 pub mod topics;
 
 pub use payload::{
-    CableObservationData, CableObservationMsg, CameraFrameHeader, DofCommand, LearningStats,
-    Mission, MissionCommand, RecorderStatus, ServiceEvent, SetpointsForm, Stamp, Stamped,
-    StepStatus, StopCause, SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
+    AutopilotAttitude, AutopilotDepth, AutopilotState, CableObservationData, CableObservationMsg,
+    CameraFrameHeader, DofCommand, LearningStats, Mission, MissionCommand, RecorderStatus,
+    SERVO_CHANNELS, STATUS_TEXT_LEN, ServiceEvent, ServoOutputs, SetpointsForm, Stamp, Stamped,
+    StatusText, StepStatus, StopCause, SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
 };
 pub use ports::{FrameInbox, FrameOutbox, FrameTap, Heartbeat, Inbox, Outbox, PortError, Tap};
 pub use topics::{Endpoint, Qos, Topic};

@@ -264,16 +264,31 @@ impl From<&CableObservationData> for model::CableObservation {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::CameraFrameHeader/2")]
+#[type_name("cabletrack::CameraFrameHeader/3")]
 pub struct CameraFrameHeader {
     pub stamp: Stamp,
     /// Pixels.
     pub width: u32,
     /// Pixels.
     pub height: u32,
+    /// What is known of the image, bits: 1 damaged (a compressed frame decoded with data missing:
+    /// perception does not track on it).
+    pub flags: u32,
+    #[serde(skip)]
+    pub _reserved: [u8; 4],
     /// The geometric camera's line for this frame, where it is known (simulation); `found = 0`
     /// otherwise. Ideal perception passes it on; image perception is checked against it.
     pub truth: CableObservationData,
+}
+
+impl CameraFrameHeader {
+    /// The image is not whole (a compressed video frame decoded with data missing): perception
+    /// does not track on it.
+    pub const DAMAGED: u32 = 1;
+
+    pub fn is_damaged(&self) -> bool {
+        self.flags & Self::DAMAGED != 0
+    }
 }
 
 /// What perception found in a frame: an estimate of the cable's line and its rates.
@@ -628,6 +643,162 @@ pub struct RecorderStatus {
     pub _reserved: u32,
 }
 
+/// What the vehicle's autopilot says of itself, from its HEARTBEAT and SYS_STATUS, published by the
+/// thruster driver that pilots it over MAVLink (the ArduSub thruster sink, `shared/ardusub`): once
+/// per autopilot heartbeat, and when the heartbeat is lost. Autopilot telemetry belongs to no
+/// control step, so it carries no [`Stamp`]: its time is the vehicle clock (`runtime::clock`,
+/// CLOCK_MONOTONIC, the clock of [`Stamp::clock_ns`]) when the message arrived, so it lines up
+/// with the steps; the autopilot's own clock where the message has one.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::AutopilotState/1")]
+pub struct AutopilotState {
+    /// Reports count from 1 in one driver's run.
+    pub seq: u64,
+    /// The vehicle clock (ns) when the autopilot's message arrived (or, for a lost heartbeat, when
+    /// the loss was found).
+    pub clock_ns: u64,
+    /// MAVLink frames refused so far on the link (broken checksums, garbage, truncated frames).
+    pub frames_refused: u64,
+    /// The battery as the autopilot reports it (SYS_STATUS): volts and amperes, NaN when unknown.
+    pub battery_v: f64,
+    pub battery_a: f64,
+    /// The pilot gain the driver scales its commands by (ArduSub's `PilotGain`).
+    pub pilot_gain: f64,
+    /// The autopilot's flight mode (HEARTBEAT `custom_mode`; ArduSub: 19 MANUAL, 2 ALT_HOLD,
+    /// 0 STABILIZE), valid while `heartbeat` is 1.
+    pub mode: u32,
+    /// 1 while the autopilot's heartbeat comes; 0 before the first and once it is lost, when
+    /// `armed` and `mode` are unknown.
+    pub heartbeat: u8,
+    /// 1 when the autopilot's heartbeat says armed (motors enabled).
+    pub armed: u8,
+    /// The autopilot's MAV_STATE (3 standby, 4 active, 5 critical, 6 emergency).
+    pub system_status: u8,
+    /// The battery's remaining charge in percent, -1 when unknown.
+    pub battery_remaining: i8,
+}
+
+/// The autopilot's attitude (MAVLink ATTITUDE): Euler angles in the NED frame, the project's
+/// conventions (yaw from north towards east, as psi from x towards y). Time as in
+/// [`AutopilotState`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::AutopilotAttitude/1")]
+pub struct AutopilotAttitude {
+    pub seq: u64,
+    pub clock_ns: u64,
+    /// Radians, and radians per second.
+    pub roll: f64,
+    pub pitch: f64,
+    pub yaw: f64,
+    pub roll_rate: f64,
+    pub pitch_rate: f64,
+    pub yaw_rate: f64,
+    /// The autopilot's clock: milliseconds since it booted.
+    pub boot_ms: u32,
+    pub _reserved: u32,
+}
+
+/// The vehicle's depth and heading as the autopilot reports them (MAVLink VFR_HUD: ArduSub puts
+/// its altitude relative to the surface in `alt`, negative below it). Time as in
+/// [`AutopilotState`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::AutopilotDepth/1")]
+pub struct AutopilotDepth {
+    pub seq: u64,
+    pub clock_ns: u64,
+    /// Metres below the surface (VFR_HUD `alt` negated).
+    pub depth_m: f64,
+    /// Degrees from north, 0 to 360.
+    pub heading_deg: f64,
+    /// Metres per second, positive up (VFR_HUD `climb`).
+    pub climb_m_s: f64,
+    /// The vertical thrust the autopilot gives, in percent.
+    pub throttle_pct: f64,
+}
+
+/// The most output channels a [`ServoOutputs`] carries.
+pub const SERVO_CHANNELS: usize = 16;
+
+/// The autopilot's outputs to the thrusters' ESCs (MAVLink SERVO_OUTPUT_RAW): pulse widths in
+/// microseconds, 1500 at rest on a BlueROV2. Time as in [`AutopilotState`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::ServoOutputs/1")]
+pub struct ServoOutputs {
+    pub seq: u64,
+    pub clock_ns: u64,
+    /// The autopilot's clock (microseconds since boot, wrapping).
+    pub time_us: u32,
+    /// The output port: channels 1 to 16 are port 0, 17 to 32 port 1.
+    pub port: u8,
+    /// Channels carried (8, or 16 with MAVLink 2's extension).
+    pub count: u8,
+    pub _reserved: [u8; 2],
+    /// Channel k+1's pulse width (us); 0 where the autopilot sends none.
+    pub pwm_us: [u16; SERVO_CHANNELS],
+}
+
+/// The longest text a [`StatusText`] carries (MAVLink STATUSTEXT's).
+pub const STATUS_TEXT_LEN: usize = 50;
+
+/// A text the autopilot sends its ground stations (MAVLink STATUSTEXT: "PreArm: ...", "Lost manual
+/// control", ...), as it comes. Time as in [`AutopilotState`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("cabletrack::StatusText/1")]
+pub struct StatusText {
+    pub seq: u64,
+    pub clock_ns: u64,
+    /// MAV_SEVERITY: 0 emergency ... 4 warning, 5 notice, 6 info, 7 debug.
+    pub severity: u8,
+    pub _reserved: [u8; 7],
+    /// UTF-8, NUL-padded.
+    pub text: [u8; STATUS_TEXT_LEN],
+    pub _pad: [u8; 6],
+}
+
+impl Default for StatusText {
+    fn default() -> Self {
+        StatusText {
+            seq: 0,
+            clock_ns: 0,
+            severity: 0,
+            _reserved: [0; 7],
+            text: [0; STATUS_TEXT_LEN],
+            _pad: [0; 6],
+        }
+    }
+}
+
+impl StatusText {
+    /// A text of `severity`; a longer one is cut at a character boundary.
+    pub fn new(severity: u8, text: &str) -> Self {
+        let mut out = StatusText {
+            severity,
+            ..Default::default()
+        };
+        let mut end = text.len().min(STATUS_TEXT_LEN);
+        while !text.is_char_boundary(end) {
+            end -= 1;
+        }
+        out.text[..end].copy_from_slice(&text.as_bytes()[..end]);
+        out
+    }
+
+    /// The text (invalid UTF-8 is replaced).
+    pub fn text(&self) -> String {
+        let end = self
+            .text
+            .iter()
+            .position(|&b| b == 0)
+            .unwrap_or(STATUS_TEXT_LEN);
+        String::from_utf8_lossy(&self.text[..end]).into_owned()
+    }
+}
+
 /// What the shore asks of the vehicle's mesh (see [`crate::topics::shore::MISSION`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
@@ -693,6 +864,23 @@ stamped!(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn autopilot_payloads_have_no_hidden_padding_and_texts_are_cut_at_a_boundary() {
+        use std::mem::size_of;
+        assert_eq!(size_of::<AutopilotState>(), 56);
+        assert_eq!(size_of::<AutopilotAttitude>(), 72);
+        assert_eq!(size_of::<AutopilotDepth>(), 48);
+        assert_eq!(size_of::<ServoOutputs>(), 56);
+        assert_eq!(size_of::<StatusText>(), 80);
+        assert_eq!(
+            StatusText::new(4, "Lost manual control").text(),
+            "Lost manual control"
+        );
+        let long = format!("{}é", "a".repeat(49));
+        assert_eq!(StatusText::new(6, &long).text(), "a".repeat(49));
+        assert_eq!(StatusText::new(6, &long).severity, 6);
+    }
 
     #[test]
     fn an_event_carries_the_service_name_cut_at_a_character_boundary() {

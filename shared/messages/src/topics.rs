@@ -282,6 +282,46 @@ pub const RECORDER_STATUS: Topic<RecorderStatus> = Topic::new(
     },
 );
 
+/// The vehicle's autopilot, as the thruster driver that pilots it over MAVLink sees it (the ArduSub
+/// thruster sink): telemetry beside the loop, a few messages a second per topic.
+const AUTOPILOT: Qos = Qos {
+    history: 1,
+    buffer: 16,
+    recorder_buffer: 64,
+    // The driver, and its restarted successor while the dead one is being cleaned up.
+    max_publishers: 2,
+    max_subscribers: 4,
+    max_nodes: 16,
+};
+
+/// The autopilot's state (armed, mode, heartbeat, battery). One thruster driver at a time pilots
+/// the autopilot: the state topic takes one publisher, and the driver opens it before it touches the
+/// autopilot, so a second driver stops there (the place of a dead one is freed by itself).
+pub const AUTOPILOT_STATE: Topic<AutopilotState> = Topic::new(
+    "autopilot/state",
+    Qos {
+        max_publishers: 1,
+        ..AUTOPILOT
+    },
+);
+/// The autopilot's attitude.
+pub const AUTOPILOT_ATTITUDE: Topic<AutopilotAttitude> =
+    Topic::new("autopilot/attitude", AUTOPILOT);
+/// The vehicle's depth and heading, from the autopilot.
+pub const AUTOPILOT_DEPTH: Topic<AutopilotDepth> = Topic::new("autopilot/depth", AUTOPILOT);
+/// The autopilot's outputs to the thrusters.
+pub const AUTOPILOT_SERVO_OUTPUTS: Topic<ServoOutputs> =
+    Topic::new("autopilot/servo_outputs", AUTOPILOT);
+/// The autopilot's texts; a subscriber that connects late still sees the last few.
+pub const AUTOPILOT_STATUS_TEXT: Topic<StatusText> = Topic::new(
+    "autopilot/status_text",
+    Qos {
+        history: 16,
+        buffer: 32,
+        ..AUTOPILOT
+    },
+);
+
 // A recorder's subscriber holds at least what a consumer of the loop holds (checked when building).
 const _: () = {
     let qos = [
@@ -292,6 +332,8 @@ const _: () = {
         STATS,
         SUPERVISOR_EVENTS.qos,
         RECORDER_STATUS.qos,
+        AUTOPILOT_STATE.qos,
+        AUTOPILOT_STATUS_TEXT.qos,
     ];
     let mut i = 0;
     while i < qos.len() {
@@ -402,6 +444,12 @@ mod tests {
     #[test]
     fn only_one_process_drives_the_thrusters() {
         assert_eq!(THRUSTER_SETPOINTS.qos.max_publishers, 1);
+        // Through an autopilot: one driver pilots it.
+        assert_eq!(AUTOPILOT_STATE.qos.max_publishers, 1);
+        assert_eq!(
+            AUTOPILOT_STATE.service_name(Endpoint::Vehicle),
+            "cabletrack/vehicle/autopilot/state"
+        );
     }
 
     /// The names of the services a mesh file of the repository's `config/` runs, sorted, but for

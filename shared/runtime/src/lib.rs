@@ -38,4 +38,4 @@ pub use node::{
 };
 pub use steps::{Answer, StepInput};
 pub use tally::{BadValues, Tally, WARN_EVERY};
-pub use wait::{Fd, Flow, Stopped, Timer, Wake, Watch};
+pub use wait::{Flow, Input, Stopped, Timer, Wake, Watch};

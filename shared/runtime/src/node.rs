@@ -286,19 +286,20 @@ impl Runtime {
         timer: Timer,
         on_wake: impl FnMut(Wake) -> anyhow::Result<crate::Flow>,
     ) -> anyhow::Result<Stopped> {
-        crate::wait::serve(inputs, &[], timer, &self.heartbeat, on_wake)
+        let inputs: Vec<crate::Input<'_>> =
+            inputs.iter().map(|l| crate::Input::Listener(l)).collect();
+        crate::wait::serve(&inputs, timer, &self.heartbeat, on_wake)
     }
 
-    /// [`Runtime::serve`] with file descriptors (sockets) as inputs too ([`crate::Fd`]): a
-    /// readable one wakes the loop like a notified listener, and `on_wake` must drain it.
-    pub fn serve_with_fds(
+    /// [`Runtime::serve`] on inputs that may be file descriptors too (a device's eventfd beside
+    /// the listeners: see [`crate::Input`]).
+    pub fn serve_inputs(
         &self,
-        inputs: &[&iceoryx2::port::listener::Listener<ipc::Service>],
-        fds: &[&crate::Fd],
+        inputs: &[crate::Input<'_>],
         timer: Timer,
         on_wake: impl FnMut(Wake) -> anyhow::Result<crate::Flow>,
     ) -> anyhow::Result<Stopped> {
-        crate::wait::serve(inputs, fds, timer, &self.heartbeat, on_wake)
+        crate::wait::serve(inputs, timer, &self.heartbeat, on_wake)
     }
 
     /// Serves one watched input, a watchdog's loop: wakes when `input` is notified (telling data

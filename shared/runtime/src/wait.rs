@@ -3,9 +3,35 @@
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
+use iceoryx2_bb_posix::file_descriptor::{FileDescriptor, FileDescriptorBased};
+use iceoryx2_bb_posix::file_descriptor_set::SynchronousMultiplexing;
 use messages::Heartbeat;
 use messages::topics::health;
+use std::os::fd::{AsRawFd, BorrowedFd};
 use std::time::{Duration, Instant};
+
+/// What a wait loop blocks on.
+#[derive(Clone, Copy, Debug)]
+pub enum Input<'a> {
+    /// An iceoryx2 listener: its notifications are consumed by the loop.
+    Listener(&'a Listener<ipc::Service>),
+    /// A file descriptor that becomes readable when there is input (an eventfd a device's thread
+    /// signals). The handler must clear it (read it) on each wake-up, or the loop wakes again at
+    /// once.
+    Readable(BorrowedFd<'a>),
+}
+
+/// A borrowed descriptor as the WaitSet attaches it (it never closes it).
+#[derive(Debug)]
+struct Readable(FileDescriptor);
+
+impl FileDescriptorBased for Readable {
+    fn file_descriptor(&self) -> &FileDescriptor {
+        &self.0
+    }
+}
+
+impl SynchronousMultiplexing for Readable {}
 
 /// When to wake without input.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -43,29 +69,8 @@ pub enum Stopped {
     Signal,
 }
 
-/// A file descriptor a service waits on beside its listeners (a socket); readable is an input.
-/// The service must drain it on every wake-up: it is level-triggered, like a listener.
-#[derive(Debug)]
-pub struct Fd(FileDescriptor);
-
-impl Fd {
-    /// Watches `source`'s descriptor (not owned: `source` must outlive the wait).
-    pub fn of(source: &impl std::os::fd::AsRawFd) -> Fd {
-        Fd(FileDescriptor::non_owning_new(source.as_raw_fd()).expect("an open file descriptor"))
-    }
-}
-
-impl FileDescriptorBased for Fd {
-    fn file_descriptor(&self) -> &FileDescriptor {
-        &self.0
-    }
-}
-
-impl SynchronousMultiplexing for Fd {}
-
 pub(crate) fn serve(
-    inputs: &[&Listener<ipc::Service>],
-    fds: &[&Fd],
+    inputs: &[Input<'_>],
     timer: Timer,
     heartbeat: &Heartbeat,
     mut on_wake: impl FnMut(Wake) -> anyhow::Result<Flow>,
@@ -73,21 +78,42 @@ pub(crate) fn serve(
     let waitset = WaitSetBuilder::new()
         .create::<ipc::Service>()
         .map_err(|e| anyhow::anyhow!("cannot create a WaitSet: {e:?}"))?;
-    let mut guards = Vec::with_capacity(inputs.len() + fds.len());
-    for listener in inputs {
+    // The descriptors are borrowed for the whole loop: the WaitSet only polls them.
+    let readables = inputs
+        .iter()
+        .filter_map(|i| match i {
+            Input::Readable(fd) => Some(
+                FileDescriptor::non_owning_new(fd.as_raw_fd())
+                    .map(Readable)
+                    .ok_or_else(|| anyhow::anyhow!("not a valid file descriptor: {fd:?}")),
+            ),
+            Input::Listener(_) => None,
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let mut guards = Vec::with_capacity(inputs.len());
+    for input in inputs {
+        if let Input::Listener(listener) = input {
+            guards.push(
+                waitset
+                    .attach_notification(*listener)
+                    .map_err(|e| anyhow::anyhow!("cannot wait on a listener: {e:?}"))?,
+            );
+        }
+    }
+    for readable in &readables {
         guards.push(
             waitset
-                .attach_notification(*listener)
-                .map_err(|e| anyhow::anyhow!("cannot wait on a listener: {e:?}"))?,
+                .attach_notification(readable)
+                .map_err(|e| anyhow::anyhow!("cannot wait on {:?}: {e:?}", readable.0))?,
         );
     }
-    for fd in fds {
-        guards.push(
-            waitset
-                .attach_notification(*fd)
-                .map_err(|e| anyhow::anyhow!("cannot wait on a file descriptor: {e:?}"))?,
-        );
-    }
+    let listeners: Vec<&Listener<ipc::Service>> = inputs
+        .iter()
+        .filter_map(|i| match i {
+            Input::Listener(l) => Some(*l),
+            Input::Readable(_) => None,
+        })
+        .collect();
     // An interval timer is an attachment of its own; a timeout is counted here, from the last call
     // of `on_wake`, because a heartbeat that falls due wakes the WaitSet in between.
     let (period, timeout) = match timer {
@@ -108,7 +134,7 @@ pub(crate) fn serve(
     let mut pulse = Pulse::start(heartbeat)?;
     // A message sent before this process's listener existed announced itself to nobody (a topic's
     // history, a producer faster than our start-up): look at the inputs once before the first wait.
-    if !(inputs.is_empty() && fds.is_empty()) && on_wake(Wake::Input)? == Flow::Stop {
+    if !inputs.is_empty() && on_wake(Wake::Input)? == Flow::Stop {
         return Ok(Stopped::Done);
     }
     let mut last_wake = Instant::now();
@@ -137,7 +163,7 @@ pub(crate) fn serve(
         pulse.beat_if_due()?;
         // Notifications are level-triggered: consume them, or the WaitSet wakes again at once. Data
         // that arrives after this is announced by a new notification, so nothing is missed.
-        for listener in inputs {
+        for listener in &listeners {
             let _ = listener.try_wait(|_| {});
         }
         let timed_out = timeout.is_some_and(|t| last_wake.elapsed() >= t);

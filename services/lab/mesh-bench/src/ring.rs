@@ -253,7 +253,7 @@ pub fn run(rt: &Runtime, role: Role, options: &RingOptions) -> Result<NodeReport
                     stamp: restamp(s.stamp),
                     width,
                     height,
-                    truth: Default::default(),
+                    ..Default::default()
                 };
                 // The port loans and zero-fills the frame in shared memory; nothing is rendered.
                 frames.send_with(header, len, |_| Ok::<(), Infallible>(()))??;
@@ -409,7 +409,7 @@ impl SimulatorPorts {
                     stamp: state.stamp,
                     width: *width,
                     height: *height,
-                    truth: Default::default(),
+                    ..Default::default()
                 };
                 let len = (*width * *height) as usize;
                 camera.send_with(header, len, |_| Ok::<(), Infallible>(()))??;

@@ -318,6 +318,7 @@ impl TwinWorld {
             width: w,
             height: h,
             truth: shot.truth,
+            ..Default::default()
         };
         if !self.image.is_empty() {
             self.twin

@@ -173,7 +173,9 @@ pub(crate) fn run(
     log: &mut TrialLog,
 ) -> anyhow::Result<()> {
     let mut link = Link::open(setup.url)?;
-    let fd = runtime::Fd::of(&link.socket);
+    // The loop waits on the socket while the handler reads and writes it: it waits on a duplicate.
+    let waker = link.socket.try_clone()?;
+    let fd = std::os::fd::AsFd::as_fd(&waker);
     let autopilot = ArduSub::new(&setup.params, setup.faults.clone(), Instant::now());
     let piloted = Piloted::new(twin, autopilot)
         .map_err(|e| anyhow::anyhow!("--autopilot needs the BlueROV2's vectored layout: {e}"))?;
@@ -186,8 +188,8 @@ pub(crate) fn run(
         "the ArduSub stand-in is on its MAVLink port"
     );
     match setup.lockstep {
-        Some(limits) => lockstep(rt, &mut link, &fd, piloted, limits, &setup, camera, log),
-        None => real_time(rt, &mut link, &fd, piloted, &setup, camera, log),
+        Some(limits) => lockstep(rt, &mut link, fd, piloted, limits, &setup, camera, log),
+        None => real_time(rt, &mut link, fd, piloted, &setup, camera, log),
     }
 }
 
@@ -195,7 +197,7 @@ pub(crate) fn run(
 fn lockstep(
     rt: &Runtime,
     link: &mut Link,
-    fd: &runtime::Fd,
+    fd: std::os::fd::BorrowedFd<'_>,
     piloted: Piloted,
     limits: Limits,
     setup: &Setup,
@@ -238,29 +240,33 @@ fn lockstep(
             Ok(Flow::Continue)
         };
     act(&mut lockstep, first)?;
-    rt.serve_with_fds(&[], &[fd], Timer::Interval(TICK), |_| {
-        let now = Instant::now();
-        let frames = link.receive(now, &lockstep.plant().autopilot)?;
-        for frame in frames {
-            let tag = lockstep.plant_mut().autopilot.receive(now, &frame);
-            let Some(tag) = tag else { continue };
-            if !Piloted::tags(lockstep.current(), &tag) {
-                tracing::debug!(?tag, "a step tag for another frame");
-                continue;
+    rt.serve_inputs(
+        &[runtime::Input::Readable(fd)],
+        Timer::Interval(TICK),
+        |_| {
+            let now = Instant::now();
+            let frames = link.receive(now, &lockstep.plant().autopilot)?;
+            for frame in frames {
+                let tag = lockstep.plant_mut().autopilot.receive(now, &frame);
+                let Some(tag) = tag else { continue };
+                if !Piloted::tags(lockstep.current(), &tag) {
+                    tracing::debug!(?tag, "a step tag for another frame");
+                    continue;
+                }
+                let key = lockstep.current().time_ns();
+                let r = lockstep.on_answer(key, &[], now);
+                if act(&mut lockstep, r)? == Flow::Stop {
+                    link.send(now, &mut lockstep.plant_mut().autopilot);
+                    return Ok(Flow::Stop);
+                }
             }
-            let key = lockstep.current().time_ns();
-            let r = lockstep.on_answer(key, &[], now);
-            if act(&mut lockstep, r)? == Flow::Stop {
-                link.send(now, &mut lockstep.plant_mut().autopilot);
-                return Ok(Flow::Stop);
-            }
-        }
-        lockstep.plant_mut().autopilot.on_time(now);
-        link.send(now, &mut lockstep.plant_mut().autopilot);
-        link.log_counts(now, &lockstep.plant().autopilot, false);
-        let r = lockstep.on_time(now);
-        act(&mut lockstep, r)
-    })?;
+            lockstep.plant_mut().autopilot.on_time(now);
+            link.send(now, &mut lockstep.plant_mut().autopilot);
+            link.log_counts(now, &lockstep.plant().autopilot, false);
+            let r = lockstep.on_time(now);
+            act(&mut lockstep, r)
+        },
+    )?;
     link.log_counts(Instant::now(), &lockstep.plant().autopilot, true);
     Ok(())
 }
@@ -268,7 +274,7 @@ fn lockstep(
 fn real_time(
     rt: &Runtime,
     link: &mut Link,
-    fd: &runtime::Fd,
+    fd: std::os::fd::BorrowedFd<'_>,
     piloted: Piloted,
     setup: &Setup,
     camera: &mut Camera,
@@ -279,34 +285,38 @@ fn real_time(
         mut autopilot,
     } = piloted;
     let mut clock = RealTime::new(twin, setup.period, setup.trials);
-    rt.serve_with_fds(&[], &[fd], Timer::Interval(TICK), |_| {
-        let now = Instant::now();
-        for frame in link.receive(now, &autopilot)? {
-            // Tags are for lockstep; in real time each period takes the newest input held.
-            autopilot.receive(now, &frame);
-        }
-        autopilot.on_time(now);
-        let tick = clock.on_time_with(now, camera.listening(), &mut |t, _| {
-            Piloted::step(t, &mut autopilot)
-        });
-        let flow = match tick {
-            Tick::Publish { shot, ended, .. } => {
-                autopilot.observe(vehicle_of(&shot.state, &shot.rate));
-                log.closed(&ended, 0, false, &shot);
-                camera.publish(clock.twin_mut(), &shot, false, &mut None)?;
-                Flow::Continue
+    rt.serve_inputs(
+        &[runtime::Input::Readable(fd)],
+        Timer::Interval(TICK),
+        |_| {
+            let now = Instant::now();
+            for frame in link.receive(now, &autopilot)? {
+                // Tags are for lockstep; in real time each period takes the newest input held.
+                autopilot.receive(now, &frame);
             }
-            Tick::Finished { ended } => {
-                let shot = *clock.twin().current().expect("started");
-                log.closed(&ended, 0, false, &shot);
-                Flow::Stop
-            }
-            Tick::Idle => Flow::Continue,
-        };
-        link.send(now, &mut autopilot);
-        link.log_counts(now, &autopilot, false);
-        Ok(flow)
-    })?;
+            autopilot.on_time(now);
+            let tick = clock.on_time_with(now, camera.listening(), &mut |t, _| {
+                Piloted::step(t, &mut autopilot)
+            });
+            let flow = match tick {
+                Tick::Publish { shot, ended, .. } => {
+                    autopilot.observe(vehicle_of(&shot.state, &shot.rate));
+                    log.closed(&ended, 0, false, &shot);
+                    camera.publish(clock.twin_mut(), &shot, false, &mut None)?;
+                    Flow::Continue
+                }
+                Tick::Finished { ended } => {
+                    let shot = *clock.twin().current().expect("started");
+                    log.closed(&ended, 0, false, &shot);
+                    Flow::Stop
+                }
+                Tick::Idle => Flow::Continue,
+            };
+            link.send(now, &mut autopilot);
+            link.log_counts(now, &autopilot, false);
+            Ok(flow)
+        },
+    )?;
     link.log_counts(Instant::now(), &autopilot, true);
     Ok(())
 }

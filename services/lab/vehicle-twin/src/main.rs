@@ -68,6 +68,136 @@ struct Args {
     /// (the autopilot silent, then back disarmed in MANUAL), seconds after the start; repeatable.
     #[arg(long, value_name = "KIND:AT:FOR", requires = "autopilot")]
     fault: Vec<vehicle_twin::ardusub::Fault>,
+    #[command(flatten)]
+    video: VideoArgs,
+}
+
+/// The camera as a BlueROV2 delivers it: RTP/H.264 on UDP instead of the iceoryx2 frame topic.
+#[derive(clap::Args)]
+struct VideoArgs {
+    /// Send the camera's frames as RTP/H.264 (payload type 96) to this UDP address, as a BlueROV2's
+    /// camera does (`camera --source rtp:ADDR:PORT` receives them); nothing is published on the
+    /// frame topic then. Built with `--features video`.
+    #[arg(long, value_name = "rtp:HOST:PORT")]
+    video: Option<String>,
+    /// --video: the size sent (the rendered frames are scaled up to it), as WIDTHxHEIGHT.
+    #[arg(long, default_value = "1920x1080", value_name = "WxH")]
+    video_size: String,
+    /// --video: the encoder's bitrate.
+    #[arg(long, default_value_t = 4000, value_name = "KBPS")]
+    video_kbps: u32,
+    /// --video: frames between two keyframes.
+    #[arg(long, default_value_t = 10, value_name = "N")]
+    video_key_int: u32,
+    /// --video: the probability that a packet is lost on the way (drawn from the seed).
+    #[arg(long, default_value_t = 0.0, value_name = "P")]
+    video_loss: f64,
+    /// --video: the largest RTP payload.
+    #[arg(long, default_value_t = 1200, value_name = "BYTES")]
+    video_max_payload: usize,
+}
+
+/// Where the twin's camera sends its frames.
+enum CameraOut {
+    /// The iceoryx2 frame topic (`cabletrack/twin/frame`).
+    Topic(Box<TwinCameraPort>),
+    /// RTP/H.264 on UDP.
+    #[cfg(feature = "video")]
+    Rtp(Box<video::sender::RtpSender>),
+}
+
+impl CameraOut {
+    fn open(
+        rt: &runtime::Runtime,
+        args: &VideoArgs,
+        size: (u32, u32),
+        fps: f64,
+    ) -> anyhow::Result<Self> {
+        let Some(spec) = &args.video else {
+            return Ok(CameraOut::Topic(Box::new(TwinCameraPort::open(
+                rt.node(),
+                size.0 as usize * size.1 as usize,
+            )?)));
+        };
+        let addr = spec
+            .strip_prefix("rtp:")
+            .ok_or_else(|| anyhow::anyhow!("--video {spec}: expected rtp:HOST:PORT"))?;
+        let destination = std::net::ToSocketAddrs::to_socket_addrs(addr)
+            .with_context(|| format!("--video {spec}: not a HOST:PORT"))?
+            .next()
+            .ok_or_else(|| anyhow::anyhow!("--video {spec}: {addr} has no address"))?;
+        let output = parse_size(&args.video_size)
+            .with_context(|| format!("--video-size {}", args.video_size))?;
+        Self::rtp(rt, args, destination, size, output, fps)
+    }
+
+    #[cfg(feature = "video")]
+    fn rtp(
+        rt: &runtime::Runtime,
+        args: &VideoArgs,
+        destination: std::net::SocketAddr,
+        size: (u32, u32),
+        output: (u32, u32),
+        fps: f64,
+    ) -> anyhow::Result<Self> {
+        use video::sender::{Encoding, RtpSender, SenderConfig};
+        let mut config = SenderConfig::new(destination, size);
+        config.output = Some(output);
+        config.fps = fps.round().max(1.0) as u32;
+        config.encoding = Encoding::Bitrate {
+            kbps: args.video_kbps,
+            profile: "constrained-baseline".into(),
+        };
+        config.key_interval = args.video_key_int;
+        config.loss = args.video_loss;
+        config.max_payload = args.video_max_payload;
+        config.seed = config::derive_seed(rt.seed(), "video");
+        Ok(CameraOut::Rtp(Box::new(RtpSender::open(config)?)))
+    }
+
+    #[cfg(not(feature = "video"))]
+    fn rtp(
+        _rt: &runtime::Runtime,
+        _args: &VideoArgs,
+        destination: std::net::SocketAddr,
+        _size: (u32, u32),
+        _output: (u32, u32),
+        _fps: f64,
+    ) -> anyhow::Result<Self> {
+        anyhow::bail!(
+            "--video rtp:{destination}: this twin was built without the RTP/H.264 video path; \
+             install GStreamer (scripts/install-gstreamer) and build it with `cargo build --release \
+             -p vehicle-twin --features video`"
+        )
+    }
+
+    /// Frame sources listening: on RTP, nobody says, and a camera streams regardless.
+    fn listeners(&self) -> usize {
+        match self {
+            CameraOut::Topic(port) => port.subscribers(),
+            #[cfg(feature = "video")]
+            CameraOut::Rtp(_) => 1,
+        }
+    }
+
+    fn send(&mut self, meta: &adapters::FrameMeta, image: &[u8]) -> anyhow::Result<()> {
+        match self {
+            CameraOut::Topic(port) => port.send(meta, |out| out.copy_from_slice(image))?,
+            #[cfg(feature = "video")]
+            CameraOut::Rtp(sender) => {
+                sender.send(Some(meta), image)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `WIDTHxHEIGHT`.
+fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
+    let (w, h) = s
+        .split_once('x')
+        .ok_or_else(|| anyhow::anyhow!("expected WIDTHxHEIGHT, e.g. 1920x1080"))?;
+    Ok((w.trim().parse()?, h.trim().parse()?))
 }
 
 /// Times each published frame until its answer (`--latency`).
@@ -119,7 +249,7 @@ impl Latency {
 
 /// Publishes the twin's frames (and records them).
 pub(crate) struct Camera {
-    port: TwinCameraPort,
+    port: CameraOut,
     image: Vec<u8>,
     size: (u32, u32),
     recorder: Option<DiveWriter>,
@@ -128,7 +258,7 @@ pub(crate) struct Camera {
 impl Camera {
     /// Whether a frame source is listening.
     pub(crate) fn listening(&self) -> bool {
-        self.port.subscribers() > 0
+        self.port.listeners() > 0
     }
 
     pub(crate) fn publish(
@@ -140,8 +270,7 @@ impl Camera {
     ) -> anyhow::Result<()> {
         twin.render(&mut self.image)?;
         let meta = shot.meta(self.size.0, self.size.1);
-        self.port
-            .send(&meta, |out| out.copy_from_slice(&self.image))?;
+        self.port.send(&meta, &self.image)?;
         // Timed from the send: rendering is the camera hardware's work, not the vehicle's.
         if !again && let Some(l) = latency.as_mut() {
             l.meter.published(shot, Instant::now());
@@ -178,8 +307,9 @@ fn main() -> ExitCode {
             ),
             None => None,
         };
+        let fps = 1.0 / scenario.timing.sample_time_s;
         let mut camera = Camera {
-            port: TwinCameraPort::open(rt.node(), len)?,
+            port: CameraOut::open(rt, &args.video, size, fps)?,
             image: vec![0; len],
             size,
             recorder,
@@ -192,6 +322,7 @@ fn main() -> ExitCode {
             trials = args.trials,
             trial_steps = twin.steps_per_trial(),
             record = ?args.record,
+            video = ?args.video.video,
             "ready"
         );
         let mut latency = args.latency.as_deref().map(Latency::create).transpose()?;
@@ -229,7 +360,7 @@ fn main() -> ExitCode {
                             tracing::info!(
                                 seq = step.seq,
                                 waited_s = waited.as_secs(),
-                                frame_sources = camera.port.subscribers(),
+                                frame_sources = camera.port.listeners(),
                                 "waiting for the mesh: no setpoints yet"
                             );
                         }
@@ -291,7 +422,7 @@ fn main() -> ExitCode {
                     }
                     clock.on_setpoints(sp.as_slice());
                 }
-                match clock.on_time(Instant::now(), camera.port.subscribers() > 0) {
+                match clock.on_time(Instant::now(), camera.listening()) {
                     Tick::Publish { shot, ended, .. } => {
                         log.closed(&ended, 0, false, &shot);
                         camera.publish(clock.twin_mut(), &shot, false, &mut latency)?;

@@ -88,6 +88,7 @@ impl Shot {
             step: self.step,
             status: self.status,
             truth: Some(self.truth),
+            damaged: false,
         }
     }
 }

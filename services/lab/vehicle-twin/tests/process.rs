@@ -232,3 +232,37 @@ fn a_bad_twin_config_is_refused_by_name() {
         twin.log()
     );
 }
+
+/// Built without the video path, the twin refuses `--video` and says how to build it; a malformed
+/// destination is refused by name either way.
+#[test]
+fn video_options_are_checked() {
+    let ns = Namespace::new("vtvo");
+    for (args, want) in [
+        (
+            &["--video", "udp:127.0.0.1:5600"][..],
+            "expected rtp:HOST:PORT",
+        ),
+        (&["--video", "rtp:127.0.0.1"][..], "not a HOST:PORT"),
+        (
+            &["--video", "rtp:127.0.0.1:5600", "--video-size", "big"][..],
+            "--video-size big",
+        ),
+    ] {
+        let mut twin = Process::start(&ns, &testkit::binary("vehicle-twin"), args);
+        let status = twin.wait(T).expect("it exits");
+        assert!(!status.success());
+        assert!(twin.log().contains(want), "{args:?}:\n{}", twin.log());
+    }
+    #[cfg(not(feature = "video"))]
+    {
+        let mut twin = Process::start(
+            &ns,
+            &testkit::binary("vehicle-twin"),
+            &["--video", "rtp:127.0.0.1:5600"],
+        );
+        let status = twin.wait(T).expect("it exits");
+        assert!(!status.success());
+        assert!(twin.log().contains("--features video"), "{}", twin.log());
+    }
+}

@@ -58,6 +58,7 @@ fn step(k: u64) -> Step {
             width: W,
             height: H,
             truth: observation,
+            ..Default::default()
         },
         image,
         observation: CableObservationMsg { stamp, observation },

@@ -190,15 +190,7 @@ impl Perception {
                 got_height: image.height(),
             });
         }
-        // An unknown or absurd step gives no rate update; after a long gap the track is stale.
-        let dt = if dt_s.is_finite() && dt_s >= MIN_DT_S {
-            dt_s
-        } else {
-            0.0
-        };
-        if dt > MAX_GAP_S {
-            self.track = None;
-        }
+        let dt = self.step(dt_s);
         let img = image.data();
         let mut detection = None;
         if self.params.tracking.enabled
@@ -218,6 +210,29 @@ impl Perception {
         }
         self.last = detection;
         Ok(self.update_track(detection, dt))
+    }
+
+    /// A frame that cannot be looked at, taken `dt_s` seconds after the previous one (its image is
+    /// damaged: video data lost on the way): the track coasts on its prediction as for a frame
+    /// where the cable was not found, and is lost after `coast_frames` of them.
+    pub fn coast(&mut self, dt_s: f64) -> CableObservation {
+        let dt = self.step(dt_s);
+        self.last = None;
+        self.update_track(None, dt)
+    }
+
+    /// The time step to use: an unknown or absurd step gives no rate update; after a long gap the
+    /// track is stale and dropped.
+    fn step(&mut self, dt_s: f64) -> f64 {
+        let dt = if dt_s.is_finite() && dt_s >= MIN_DT_S {
+            dt_s
+        } else {
+            0.0
+        };
+        if dt > MAX_GAP_S {
+            self.track = None;
+        }
+        dt
     }
 
     /// Searches the whole frame: coarse Hough, then each hypothesis checked at full resolution.

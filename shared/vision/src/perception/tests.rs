@@ -246,3 +246,43 @@ fn a_frame_of_another_size_is_an_error() {
         })
     ));
 }
+
+/// A damaged frame is not looked at: the track coasts exactly as on a frame without the cable,
+/// with a decaying confidence, and is lost after `coast_frames` of them.
+#[test]
+fn coasting_is_a_frame_without_the_cable() {
+    let mut r = rig();
+    let mut blank = rig();
+    let pose = Pose {
+        x: 0.0,
+        y: 0.05,
+        psi: 0.1,
+    };
+    let still = PoseRate::default();
+    for k in 0..3 {
+        let frame = r.renderer.render_frame(&pose, &still, k);
+        let a = r.perception.process(frame.view(), DT).unwrap();
+        let b = blank.perception.process(frame.view(), DT).unwrap();
+        assert!(a.found);
+        assert_eq!(a, b);
+    }
+    let (w, h) = (r.scenario.camera.width, r.scenario.camera.height);
+    let empty = crate::Frame::new(w as usize, h as usize).unwrap();
+    let coast_frames = r.scenario.perception.tracking.coast_frames;
+    let mut confidence = r.perception.last_detection().unwrap().confidence;
+    for k in 0..=coast_frames {
+        let coasted = r.perception.coast(DT);
+        let missed = blank.perception.process(empty.view(), DT).unwrap();
+        assert_eq!(coasted, missed, "coast {k}");
+        assert!(r.perception.last_detection().is_none());
+        if k < coast_frames {
+            assert!(
+                coasted.found && coasted.confidence < confidence,
+                "coast {k}"
+            );
+            confidence = coasted.confidence;
+        } else {
+            assert!(!coasted.found, "lost after {coast_frames} frames");
+        }
+    }
+}

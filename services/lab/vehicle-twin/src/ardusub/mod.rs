@@ -465,6 +465,7 @@ impl ArduSub {
             STATUSTEXT_DATA {
                 severity,
                 text: text.into(),
+                ..Default::default()
             },
         ))));
     }
@@ -779,6 +780,7 @@ impl ArduSub {
                     servo7_raw: 0,
                     servo8_raw: 0,
                     port: 0,
+                    ..Default::default()
                 })
             }
             _ => return false,

@@ -39,6 +39,7 @@ fn manual(x: i16, y: i16, z: i16, r: i16) -> MavMessage {
         r,
         buttons: 0,
         target: 1,
+        ..Default::default()
     })
 }
 

@@ -250,6 +250,7 @@ mod tests {
             r: 7,
             buttons: 0,
             target: 1,
+            ..Default::default()
         });
         frame_v2(9, 255, 190, 69, &payload(&m))
     }

@@ -81,6 +81,8 @@ pub fn step(k: u64) -> Step {
             stamp,
             width: W,
             height: H,
+            flags: CameraFrameHeader::DAMAGED * (k % 2) as u32,
+            _reserved: [0; 4],
             truth: observation(k),
         },
         image: (0..W * H).map(|i| (i as u64 * 37 + k * 11) as u8).collect(),
