@@ -6,8 +6,8 @@
 //! ```toml
 //! [mesh]
 //! endpoint = "sim"                      # passed to every service as --endpoint
-//! config = "bluerov2"                   # the services' config directory, beside this file (default:
-//!                                       # the supervisor's --config, `config`)
+//! config = "bluerov2"                   # the services' config directory, beside this file (it wins
+//!                                       # over the supervisor's --config)
 //! stop_when = ["simulator", "monitor"]  # done once all of these have exited successfully
 //! [restart]
 //! enabled = false                       # restart a service that dies (with backoff, up to a limit)
@@ -51,8 +51,8 @@ pub struct MeshParams {
     #[serde(default)]
     pub defaults: BTreeMap<String, String>,
     /// The configuration directory the services read, relative to the mesh file's directory
-    /// (`config/bluerov2.toml` names `config/bluerov2` with `config = "bluerov2"`); the supervisor's
-    /// `--config` on its command line wins (`CABLETRACK_CONFIG` does not). None: the supervisor's default.
+    /// (`config/bluerov2.toml` names `config/bluerov2` with `config = "bluerov2"`); it wins over the
+    /// supervisor's `--config`. None: the supervisor's `--config`.
     #[serde(default)]
     pub config: Option<PathBuf>,
 }
@@ -284,34 +284,6 @@ pub struct ServiceCommand {
     /// Started first and stopped last (see [`ServiceSpec::observer`]).
     pub observer: bool,
     pub placement: Placement,
-}
-
-/// The `supervisor` command line that runs `mesh` with the experiment's `seed` in the iceoryx2
-/// namespace `iox`, passing `--config CONFIG` when given and `--set KEY=VALUE` for each of `sets`:
-/// how the tests and the benchmarks start a mesh.
-pub fn command_line(
-    mesh: &Path,
-    config: Option<&Path>,
-    seed: u64,
-    iox: &runtime::IoxSettings,
-    sets: &[(&str, String)],
-) -> Vec<String> {
-    let mut args: Vec<String> = vec!["--mesh".into(), mesh.display().to_string()];
-    if let Some(dir) = config {
-        args.extend(["--config".into(), dir.display().to_string()]);
-    }
-    args.extend([
-        "--seed".into(),
-        seed.to_string(),
-        "--iox-prefix".into(),
-        iox.prefix.clone(),
-        "--iox-root".into(),
-        iox.root.clone(),
-    ]);
-    for (k, v) in sets {
-        args.extend(["--set".into(), format!("{k}={v}")]);
-    }
-    args
 }
 
 /// Replaces every `{key}` in `text`; the first key without a value is the error.

@@ -4,10 +4,14 @@
 //! services named in `stop_when` are done, and on SIGINT/SIGTERM stops them all: SIGTERM to each, a
 //! grace period, then SIGKILL (`runtime::process`), the observers last. Every start, exit, restart
 //! and stop is logged and published on the endpoint's `supervisor/events` topic.
+//!
+//! With `--own-namespace` the mesh runs in an iceoryx2 namespace of the run's own (a prefix and a
+//! root no other run uses, `runtime::Namespace`), printed at start; when the run ends the supervisor
+//! checks that its services left no shared memory behind (the run fails if they did) and removes
+//! the namespace.
 
 use anyhow::{Context, Result, bail};
-use clap::parser::ValueSource;
-use clap::{CommandFactory, FromArgMatches, Parser};
+use clap::Parser;
 use iceoryx2::prelude::{Node, ipc};
 use messages::{Endpoint, Outbox, ServiceEvent, SupervisorEvent, topics};
 use runtime::process::{self, Child, Spawn};
@@ -29,12 +33,8 @@ mod watch;
     about = "Runs a mesh of cabletrack services described by a file in config/."
 )]
 struct Args {
-    /// The mesh file (e.g. config/sim-mesh.toml).
-    #[arg(long)]
-    mesh: PathBuf,
-    /// A placeholder's value in the mesh file, KEY=VALUE (repeatable).
-    #[arg(long = "set", value_parser = parse_key_value)]
-    set: Vec<(String, String)>,
+    #[command(flatten)]
+    launch: runtime::MeshArgs,
     /// Where the service programs are (default: beside this one).
     #[arg(long)]
     bin_dir: Option<PathBuf>,
@@ -44,37 +44,18 @@ struct Args {
     /// Seconds an observer (`observer = true`) gets to say it is ready before the mesh is given up.
     #[arg(long, default_value_t = 30.0)]
     ready_timeout_s: f64,
-    /// The configuration directory, passed to every service [default: the mesh file's `config`
-    /// key, else CABLETRACK_CONFIG, else `config`]. Given here, it wins over the mesh file's.
-    #[arg(long, env = "CABLETRACK_CONFIG")]
-    config: Option<PathBuf>,
-    /// Whether --config was on the command line (not from the environment).
-    #[arg(skip)]
-    config_given: bool,
-    /// The experiment's seed, passed to every service (and as `{seed}`).
-    #[arg(long, default_value_t = 1, env = "CABLETRACK_SEED")]
-    seed: u64,
-    #[command(flatten)]
-    iox: runtime::IoxSettings,
-}
-
-fn parse_key_value(s: &str) -> Result<(String, String), String> {
-    s.split_once('=')
-        .map(|(k, v)| (k.to_owned(), v.to_owned()))
-        .ok_or_else(|| format!("`{s}` is not KEY=VALUE"))
+    /// Run in an iceoryx2 namespace of this run's own instead of --iox-prefix and --iox-root: a
+    /// prefix and a root no other run uses, printed at start, removed when the run ends (the run
+    /// fails if the services left shared memory behind).
+    #[arg(long)]
+    own_namespace: bool,
 }
 
 fn main() -> ExitCode {
     runtime::init_tracing();
     let span = tracing::info_span!("supervisor");
     let _entered = span.enter();
-    let matches = Args::command().get_matches();
-    let mut args = match Args::from_arg_matches(&matches) {
-        Ok(args) => args,
-        Err(e) => e.exit(),
-    };
-    args.config_given = matches.value_source("config") == Some(ValueSource::CommandLine);
-    match run(args) {
+    match run(Args::parse()) {
         Ok(code) => code,
         Err(err) => {
             tracing::error!("{err:#}");
@@ -176,9 +157,7 @@ impl Events {
             return;
         };
         self.seq += 1;
-        let wall = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos() as u64);
+        let wall = runtime::clock::unix_ns();
         let mut event = SupervisorEvent::new(self.seq, wall, kind, &service.cmd.name);
         event.pid = pid;
         event.status = status;
@@ -225,17 +204,17 @@ fn start(s: &mut Service, env: &[(&str, String)], ready_pipe: bool) -> Result<Ch
 }
 
 fn run(args: Args) -> Result<ExitCode> {
-    let mesh = MeshFile::load(&args.mesh)?;
+    let mesh = MeshFile::load(&args.launch.mesh)?;
     let endpoint: Endpoint = mesh
         .mesh
         .endpoint
         .parse()
         .map_err(anyhow::Error::msg)
-        .with_context(|| format!("{}: mesh.endpoint", args.mesh.display()))?;
-    let mut vars: BTreeMap<String, String> = args.set.iter().cloned().collect();
+        .with_context(|| format!("{}: mesh.endpoint", args.launch.mesh.display()))?;
+    let mut vars: BTreeMap<String, String> = args.launch.set.iter().cloned().collect();
     vars.entry("seed".into())
-        .or_insert_with(|| args.seed.to_string());
-    let commands = mesh.commands(&vars, &args.mesh)?;
+        .or_insert_with(|| args.launch.run.seed.to_string());
+    let commands = mesh.commands(&vars, &args.launch.mesh)?;
     let bin_dir = match &args.bin_dir {
         Some(d) => d.clone(),
         None => std::env::current_exe()?
@@ -243,29 +222,38 @@ fn run(args: Args) -> Result<ExitCode> {
             .context("the supervisor's directory")?
             .to_owned(),
     };
-    // --config given wins; then the mesh's own directory (a BlueROV2's mesh runs on its model
-    // whatever the environment says); then CABLETRACK_CONFIG; then `config`.
-    let config = match (args.config_given, mesh.config_dir(&args.mesh)) {
-        (false, Some(dir)) => dir,
-        _ => args
-            .config
-            .clone()
-            .unwrap_or_else(|| PathBuf::from("config")),
+    // Dropped last: removes the run's own namespace whichever way the run ends.
+    let own = args.own_namespace.then(|| runtime::Namespace::new("mesh"));
+    // What every service is given: the configuration (absolute: a service may run from elsewhere),
+    // the seed, the namespace.
+    let given = &args.launch.run;
+    // A mesh that names its configuration (a BlueROV2's: its model and layout) runs on it.
+    let config = mesh
+        .config_dir(&args.launch.mesh)
+        .unwrap_or_else(|| given.config.clone());
+    let run = runtime::RunArgs {
+        config: config
+            .canonicalize()
+            .with_context(|| format!("config directory {}", config.display()))?,
+        seed: given.seed,
+        iox: match &own {
+            Some(ns) => {
+                cli::outln!(
+                    "supervisor: this run's own namespace: --iox-prefix {} --iox-root {}",
+                    ns.iox.prefix,
+                    ns.iox.root
+                )?;
+                ns.iox.clone()
+            }
+            None => given.iox.clone(),
+        },
     };
-    let config_dir = config
-        .canonicalize()
-        .with_context(|| format!("config directory {}", config.display()))?;
-    let iox = args.iox.config()?;
+    let iox = run.iox.config()?;
     let signals = Signals::install()?;
     let node = runtime::create_node("supervisor", &iox)?;
     let mut events = Events::open(&node, endpoint);
 
-    let env = [
-        ("CABLETRACK_CONFIG", config_dir.display().to_string()),
-        ("CABLETRACK_SEED", args.seed.to_string()),
-        ("CABLETRACK_IOX_PREFIX", args.iox.prefix.clone()),
-        ("CABLETRACK_IOX_ROOT", args.iox.root.clone()),
-    ];
+    let env = run.env();
     let mut services = Vec::new();
     for cmd in commands {
         let program = bin_dir.join(&cmd.binary);
@@ -289,7 +277,7 @@ fn run(args: Args) -> Result<ExitCode> {
         services.iter().map(|s| s.cmd.name.clone()).collect(),
         signals.write.try_clone()?,
     )?;
-    tracing::info!(mesh = %args.mesh.display(), services = services.len(), "starting the mesh");
+    tracing::info!(mesh = %args.launch.mesh.display(), services = services.len(), "starting the mesh");
     let stop_when = mesh.mesh.stop_when.clone();
     let restart = mesh.restart.clone();
 
@@ -414,6 +402,7 @@ fn run(args: Args) -> Result<ExitCode> {
     stop_all(&mut services, false, grace, &mut events);
     stop_all(&mut services, true, grace, &mut events);
     drop(events);
+    drop(watch);
     drop(node);
     let cleaned = runtime::remove_dead_nodes(&iox);
     if cleaned > 0 {
@@ -422,6 +411,18 @@ fn run(args: Args) -> Result<ExitCode> {
             "removed the leftovers of processes that had to be killed"
         );
     }
+    // The services are gone: what is still there of the run's own namespace they left behind.
+    let left = own.as_ref().map_or_else(Vec::new, |ns| ns.leftovers());
+    let outcome = match outcome {
+        Ok(()) if !left.is_empty() => Err(format!(
+            "the services left shared-memory files behind: {left:?}"
+        )),
+        Err(why) if !left.is_empty() => {
+            tracing::error!(files = ?left, "the services left shared-memory files behind");
+            Err(why)
+        }
+        outcome => outcome,
+    };
     match outcome {
         Ok(()) => {
             tracing::info!("mesh stopped");
