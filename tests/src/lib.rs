@@ -131,7 +131,12 @@ pub fn mean(values: &[f64]) -> f64 {
 /// A short step one in one process (`episodes` episodes, ideal perception, `seed`), saved as the
 /// mesh's behaviours save theirs: `DIR/sway.ckpt` and `DIR/yaw.ckpt`.
 pub fn step_one(dir: &Path, episodes: u64, seed: u64) {
-    let config = testkit::config_dir();
+    step_one_in(&testkit::config_dir(), dir, episodes, seed)
+}
+
+/// [`step_one`] on the scenario and learning parameters of the configuration directory `config`
+/// (`config/bluerov2`: the BlueROV2's).
+pub fn step_one_in(config: &Path, dir: &Path, episodes: u64, seed: u64) {
     let scenario: Scenario = config::load(&config.join("scenario.toml")).unwrap();
     let learning: LearningParams = config::load(&config.join("learning.toml")).unwrap();
     let eyes = Perceiver::Ideal(scenario.observation.clone());

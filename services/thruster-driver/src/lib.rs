@@ -12,6 +12,8 @@
 //!   stale (`deadline`), when the allocator's process is gone (`allocator_dead`), and on shutdown
 //!   (`shutdown`); each stop once, until fresh setpoints come again.
 
+pub mod bench;
+
 use adapters::failsafe::{Failsafe, Thrust};
 use adapters::{AdapterError, Applied, StopCause, ThrusterSink};
 use messages::ThrusterSetpoints;

@@ -650,7 +650,9 @@ pub struct RecorderStatus {
 /// control step, so it carries no [`Stamp`]: its time is the vehicle clock (`runtime::clock`,
 /// CLOCK_MONOTONIC, the clock of [`Stamp::clock_ns`]) when the message arrived, so it lines up
 /// with the steps; the autopilot's own clock where the message has one.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
 #[type_name("cabletrack::AutopilotState/2")]
 pub struct AutopilotState {
@@ -662,9 +664,12 @@ pub struct AutopilotState {
     /// MAVLink frames refused so far on the link (broken checksums, garbage, truncated frames).
     pub frames_refused: u64,
     /// The battery as the autopilot reports it (SYS_STATUS): volts and amperes, NaN when unknown.
+    #[serde(with = "NumberOrNull")]
     pub battery_v: f64,
+    #[serde(with = "NumberOrNull")]
     pub battery_a: f64,
     /// The pilot gain the driver scales its commands by (ArduSub's `PilotGain`).
+    #[serde(with = "NumberOrNull")]
     pub pilot_gain: f64,
     /// The autopilot's flight mode (HEARTBEAT `custom_mode`; ArduSub: 19 MANUAL, 2 ALT_HOLD,
     /// 0 STABILIZE), valid while `heartbeat` is 1.
@@ -683,40 +688,55 @@ pub struct AutopilotState {
 /// The autopilot's attitude (MAVLink ATTITUDE): Euler angles in the NED frame, the project's
 /// conventions (yaw from north towards east, as psi from x towards y). Time as in
 /// [`AutopilotState`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
 #[type_name("cabletrack::AutopilotAttitude/2")]
 pub struct AutopilotAttitude {
     pub seq: u64,
     pub clock_ns: i64,
     /// Radians, and radians per second.
+    #[serde(with = "NumberOrNull")]
     pub roll: f64,
+    #[serde(with = "NumberOrNull")]
     pub pitch: f64,
+    #[serde(with = "NumberOrNull")]
     pub yaw: f64,
+    #[serde(with = "NumberOrNull")]
     pub roll_rate: f64,
+    #[serde(with = "NumberOrNull")]
     pub pitch_rate: f64,
+    #[serde(with = "NumberOrNull")]
     pub yaw_rate: f64,
     /// The autopilot's clock: milliseconds since it booted.
     pub boot_ms: u32,
+    #[serde(skip)]
     pub _reserved: u32,
 }
 
 /// The vehicle's depth and heading as the autopilot reports them (MAVLink VFR_HUD: ArduSub puts
 /// its altitude relative to the surface in `alt`, negative below it). Time as in
 /// [`AutopilotState`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
 #[type_name("cabletrack::AutopilotDepth/2")]
 pub struct AutopilotDepth {
     pub seq: u64,
     pub clock_ns: i64,
     /// Metres below the surface (VFR_HUD `alt` negated).
+    #[serde(with = "NumberOrNull")]
     pub depth_m: f64,
     /// Degrees from north, 0 to 360.
+    #[serde(with = "NumberOrNull")]
     pub heading_deg: f64,
     /// Metres per second, positive up (VFR_HUD `climb`).
+    #[serde(with = "NumberOrNull")]
     pub climb_m_s: f64,
     /// The vertical thrust the autopilot gives, in percent.
+    #[serde(with = "NumberOrNull")]
     pub throttle_pct: f64,
 }
 
@@ -725,7 +745,9 @@ pub const SERVO_CHANNELS: usize = 16;
 
 /// The autopilot's outputs to the thrusters' ESCs (MAVLink SERVO_OUTPUT_RAW): pulse widths in
 /// microseconds, 1500 at rest on a BlueROV2. Time as in [`AutopilotState`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
 #[repr(C)]
 #[type_name("cabletrack::ServoOutputs/2")]
 pub struct ServoOutputs {
@@ -737,6 +759,7 @@ pub struct ServoOutputs {
     pub port: u8,
     /// Channels carried (8, or 16 with MAVLink 2's extension).
     pub count: u8,
+    #[serde(skip)]
     pub _reserved: [u8; 2],
     /// Channel k+1's pulse width (us); 0 where the autopilot sends none.
     pub pwm_us: [u16; SERVO_CHANNELS],
@@ -747,7 +770,7 @@ pub const STATUS_TEXT_LEN: usize = 50;
 
 /// A text the autopilot sends its ground stations (MAVLink STATUSTEXT: "PreArm: ...", "Lost manual
 /// control", ...), as it comes. Time as in [`AutopilotState`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend, Serialize, Deserialize, JsonSchema)]
 #[repr(C)]
 #[type_name("cabletrack::StatusText/2")]
 pub struct StatusText {
@@ -755,9 +778,12 @@ pub struct StatusText {
     pub clock_ns: i64,
     /// MAV_SEVERITY: 0 emergency ... 4 warning, 5 notice, 6 info, 7 debug.
     pub severity: u8,
+    #[serde(skip)]
     pub _reserved: [u8; 7],
     /// UTF-8, NUL-padded.
+    #[serde(with = "Text::<STATUS_TEXT_LEN>")]
     pub text: [u8; STATUS_TEXT_LEN],
+    #[serde(skip)]
     pub _pad: [u8; 6],
 }
 

@@ -152,6 +152,7 @@ impl Link {
             unknown = r.unknown,
             unsupported = r.unsupported,
             undecodable = c.undecodable,
+            manual_control = c.manual_control,
             manual_control_not_from_gcs = c.not_from_gcs,
             manual_control_not_for_us = c.not_for_us,
             dropped_in = c.dropped_in,

@@ -68,6 +68,11 @@ struct Args {
     /// (the autopilot silent, then back disarmed in MANUAL), seconds after the start; repeatable.
     #[arg(long, value_name = "KIND:AT:FOR", requires = "autopilot")]
     fault: Vec<vehicle_twin::ardusub::Fault>,
+    /// With --autopilot: an ArduSub parameter set over the twin config's `[autopilot.params]`,
+    /// `NAME=VALUE` (e.g. `MAV_GCS_SYSID=254` for a vehicle set up for the stack, docs/bluerov2.md;
+    /// `MOT_3_DIRECTION=-1` for a reversed thruster); checked as the file's are. Repeatable.
+    #[arg(long = "param", value_name = "NAME=VALUE", requires = "autopilot", value_parser = parse_param)]
+    params: Vec<(String, f64)>,
     #[command(flatten)]
     video: VideoArgs,
 }
@@ -282,6 +287,16 @@ impl Camera {
     }
 }
 
+fn parse_param(s: &str) -> Result<(String, f64), String> {
+    let (name, value) = s
+        .split_once('=')
+        .ok_or_else(|| format!("`{s}` is not NAME=VALUE"))?;
+    let value = value
+        .parse()
+        .map_err(|e| format!("`{s}`: the value is not a number: {e}"))?;
+    Ok((name.to_owned(), value))
+}
+
 fn main() -> ExitCode {
     let args = Args::parse();
     runtime::run("vehicle-twin", &args.common, |rt| {
@@ -292,7 +307,13 @@ fn main() -> ExitCode {
             .twin_config
             .clone()
             .unwrap_or_else(|| rt.config_dir().join("twin.toml"));
-        let params: TwinParams = config::load(&path)?;
+        let mut params: TwinParams = config::load(&path)?;
+        if !args.params.is_empty() {
+            params.autopilot.params.extend(args.params.iter().cloned());
+            config::Validate::validate(&params.autopilot, "--param")
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            tracing::info!(params = ?args.params, "autopilot parameters set on the command line");
+        }
         let scenario = rt.scenario();
         let twin = Twin::new(scenario, &params, rt.seed(), true)?;
         let size = (scenario.camera.width, scenario.camera.height);

@@ -2,7 +2,7 @@
 //! the last heartbeat, restarts), per topic (rate and last stamp) and per learner (gains, returns).
 //! Plain records filled by the `status` binary and printed as a table or JSON.
 
-use messages::{LearningStats, Stamp};
+use messages::{AutopilotDepth, AutopilotState, LearningStats, ServoOutputs, Stamp, StatusText};
 use serde::Serialize;
 use std::fmt::Write;
 
@@ -81,6 +81,87 @@ impl LearnerStatus {
     }
 }
 
+/// The autopilot a thruster driver pilots over MAVLink (a vehicle under ArduSub), from its
+/// telemetry topics (`cabletrack/vehicle/autopilot/*`): the latest of each.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct AutopilotStatus {
+    /// Its state reports received over the observation (one per autopilot heartbeat, 1 Hz).
+    pub reports: u64,
+    pub heartbeat: bool,
+    pub armed: bool,
+    /// ArduSub's mode name (or its number).
+    pub mode: String,
+    pub battery_v: Option<f64>,
+    pub frames_refused: u64,
+    pub pilot_gain: Option<f64>,
+    pub depth_m: Option<f64>,
+    pub heading_deg: Option<f64>,
+    /// The first six outputs' pulses (us): the BlueROV2's thrusters.
+    pub pwm_us: Option<Vec<u16>>,
+    /// The autopilot's last text and its severity.
+    pub last_text: Option<(u8, String)>,
+}
+
+/// ArduSub's name of a mode number (`custom_mode`).
+pub fn ardusub_mode(mode: u32) -> String {
+    match mode {
+        0 => "STABILIZE".into(),
+        1 => "ACRO".into(),
+        2 => "ALT_HOLD".into(),
+        3 => "AUTO".into(),
+        4 => "GUIDED".into(),
+        7 => "CIRCLE".into(),
+        9 => "SURFACE".into(),
+        16 => "POSHOLD".into(),
+        19 => "MANUAL".into(),
+        20 => "MOTOR_DETECT".into(),
+        21 => "SURFTRAK".into(),
+        n => format!("mode {n}"),
+    }
+}
+
+fn finite(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
+}
+
+impl AutopilotStatus {
+    /// From the latest message of each topic; `None` when the autopilot said nothing.
+    pub fn new(
+        reports: u64,
+        state: Option<&AutopilotState>,
+        depth: Option<&AutopilotDepth>,
+        servos: Option<&ServoOutputs>,
+        text: Option<&StatusText>,
+    ) -> Option<Self> {
+        if state.is_none() && depth.is_none() && servos.is_none() && text.is_none() {
+            return None;
+        }
+        let mut s = AutopilotStatus {
+            reports,
+            ..Default::default()
+        };
+        if let Some(a) = state {
+            s.heartbeat = a.heartbeat == 1;
+            s.armed = a.armed == 1;
+            s.mode = if s.heartbeat {
+                ardusub_mode(a.mode)
+            } else {
+                "unknown".into()
+            };
+            s.battery_v = finite(a.battery_v);
+            s.frames_refused = a.frames_refused;
+            s.pilot_gain = finite(a.pilot_gain);
+        }
+        if let Some(d) = depth {
+            s.depth_m = finite(d.depth_m);
+            s.heading_deg = finite(d.heading_deg);
+        }
+        s.pwm_us = servos.map(|o| o.pwm_us[..usize::from(o.count).min(6)].to_vec());
+        s.last_text = text.map(|t| (t.severity, t.text()));
+        Some(s)
+    }
+}
+
 /// The whole view.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Status {
@@ -89,6 +170,9 @@ pub struct Status {
     pub services: Vec<ServiceStatus>,
     pub topics: Vec<TopicStatus>,
     pub learners: Vec<LearnerStatus>,
+    /// The autopilot, where a driver pilots one over MAVLink.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub autopilot: Option<AutopilotStatus>,
 }
 
 fn opt<T: std::fmt::Display>(v: Option<T>) -> String {
@@ -155,6 +239,30 @@ impl Status {
                 if l.learning { "" } else { " (acting only)" }
             );
         }
+        if let Some(a) = &self.autopilot {
+            let f = |v: Option<f64>, unit: &str| {
+                v.map_or_else(|| "-".into(), |v| format!("{v:.2}{unit}"))
+            };
+            let _ = writeln!(
+                out,
+                "autopilot | heartbeat {} | {} | {} | battery {} | gain {} | depth {} | heading {} | {} frames refused | {} reports",
+                if a.heartbeat { "yes" } else { "LOST" },
+                if a.armed { "armed" } else { "disarmed" },
+                a.mode,
+                f(a.battery_v, " V"),
+                f(a.pilot_gain, ""),
+                f(a.depth_m, " m"),
+                f(a.heading_deg, " deg"),
+                a.frames_refused,
+                a.reports
+            );
+            if let Some(p) = &a.pwm_us {
+                let _ = writeln!(out, "autopilot outputs (us) | {p:?}");
+            }
+            if let Some((severity, text)) = &a.last_text {
+                let _ = writeln!(out, "autopilot said (severity {severity}) | {text}");
+            }
+        }
         out
     }
 }
@@ -203,6 +311,26 @@ mod tests {
             ],
             topics: vec![TopicStatus::new("camera_frame", 10, 2.0, None)],
             learners: vec![LearnerStatus::new(config::Dof::Yaw, &stats)],
+            autopilot: AutopilotStatus::new(
+                3,
+                Some(&AutopilotState {
+                    heartbeat: 1,
+                    armed: 1,
+                    mode: 19,
+                    battery_v: 15.6,
+                    pilot_gain: f64::NAN,
+                    ..Default::default()
+                }),
+                None,
+                Some(&ServoOutputs {
+                    count: 8,
+                    pwm_us: [
+                        1580, 1420, 1500, 1500, 1500, 1500, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
+                    ],
+                    ..Default::default()
+                }),
+                Some(&StatusText::new(2, "Lost manual control")),
+            ),
         };
         let table = status.table();
         for want in [
@@ -216,10 +344,17 @@ mod tests {
             "5.00",
             "0.250",
             "-1.500",
+            "armed | MANUAL | battery 15.60 V | gain -",
+            "[1580, 1420, 1500, 1500, 1500, 1500]",
+            "Lost manual control",
         ] {
             assert!(table.contains(want), "`{want}` missing from\n{table}");
         }
         let json = serde_json::to_value(&status).unwrap();
         assert_eq!(json["services"][1]["node"], "dead");
+        assert_eq!(json["autopilot"]["mode"], "MANUAL");
+        assert_eq!(AutopilotStatus::new(0, None, None, None, None), None);
+        let lost = AutopilotStatus::new(1, Some(&AutopilotState::default()), None, None, None);
+        assert_eq!(lost.unwrap().mode, "unknown");
     }
 }

@@ -6,6 +6,8 @@
 //! ```toml
 //! [mesh]
 //! endpoint = "sim"                      # passed to every service as --endpoint
+//! config = "bluerov2"                   # the services' config directory, beside this file (it wins
+//!                                       # over the supervisor's --config)
 //! stop_when = ["simulator", "monitor"]  # done once all of these have exited successfully
 //! [restart]
 //! enabled = false                       # restart a service that dies (with backoff, up to a limit)
@@ -48,6 +50,11 @@ pub struct MeshParams {
     /// Placeholder values used when the command line does not set them.
     #[serde(default)]
     pub defaults: BTreeMap<String, String>,
+    /// The configuration directory the services read, relative to the mesh file's directory
+    /// (`config/bluerov2.toml` names `config/bluerov2` with `config = "bluerov2"`); it wins over the
+    /// supervisor's `--config`. None: the supervisor's `--config`.
+    #[serde(default)]
+    pub config: Option<PathBuf>,
 }
 
 /// How dead services are restarted.
@@ -135,6 +142,13 @@ pub enum MeshError {
 }
 
 impl MeshFile {
+    /// The configuration directory this mesh names ([`MeshParams::config`]), resolved against the
+    /// directory of the mesh file at `path`.
+    pub fn config_dir(&self, path: &Path) -> Option<PathBuf> {
+        let dir = self.mesh.config.as_ref()?;
+        Some(path.parent().unwrap_or(Path::new(".")).join(dir))
+    }
+
     pub fn load(path: &Path) -> Result<MeshFile, MeshError> {
         let text = std::fs::read_to_string(path).map_err(|source| MeshError::Read {
             file: path.to_owned(),
@@ -313,6 +327,21 @@ only_if = "{record}"
 observer = true
 args = ["--out", "{record}"]
 "#;
+
+    #[test]
+    fn a_mesh_names_its_config_directory_beside_itself() {
+        let mesh = MeshFile::parse(MESH, Path::new("config/sim.toml")).unwrap();
+        assert_eq!(mesh.config_dir(Path::new("config/sim.toml")), None);
+        let text = MESH.replace(
+            "endpoint = \"sim\"",
+            "endpoint = \"sim\"\nconfig = \"bluerov2\"",
+        );
+        let mesh = MeshFile::parse(&text, Path::new("config/b.toml")).unwrap();
+        assert_eq!(
+            mesh.config_dir(Path::new("config/b.toml")),
+            Some(PathBuf::from("config/bluerov2"))
+        );
+    }
 
     #[test]
     fn placements_fill_placeholders_and_name_what_is_wrong() {

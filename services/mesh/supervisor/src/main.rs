@@ -227,11 +227,14 @@ fn run(args: Args) -> Result<ExitCode> {
     // What every service is given: the configuration (absolute: a service may run from elsewhere),
     // the seed, the namespace.
     let given = &args.launch.run;
+    // A mesh that names its configuration (a BlueROV2's: its model and layout) runs on it.
+    let config = mesh
+        .config_dir(&args.launch.mesh)
+        .unwrap_or_else(|| given.config.clone());
     let run = runtime::RunArgs {
-        config: given
-            .config
+        config: config
             .canonicalize()
-            .with_context(|| format!("config directory {}", given.config.display()))?,
+            .with_context(|| format!("config directory {}", config.display()))?,
         seed: given.seed,
         iox: match &own {
             Some(ns) => {

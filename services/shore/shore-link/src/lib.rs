@@ -29,7 +29,8 @@ pub struct AllowList {
 }
 
 impl AllowList {
-    /// The telemetry of `endpoint` (state, observations, learning reports, heartbeats), the camera
+    /// The telemetry of `endpoint` (state, observations, learning reports, the autopilot's telemetry
+    /// where a driver pilots one over MAVLink, heartbeats), the camera
     /// frames only when `frames`, and the shore's mission commands. Never the per-DOF commands, the
     /// thruster setpoints or the hardware topics: the vehicle's control loop stays on the vehicle. A
     /// bridged service gets a publisher of the link on this host, so a bridged actuator topic could be
@@ -51,6 +52,26 @@ impl AllowList {
             (
                 topics::YAW_LEARNING.service_name(endpoint),
                 topics::YAW_LEARNING.qos,
+            ),
+            (
+                topics::AUTOPILOT_STATE.service_name(endpoint),
+                topics::AUTOPILOT_STATE.qos,
+            ),
+            (
+                topics::AUTOPILOT_ATTITUDE.service_name(endpoint),
+                topics::AUTOPILOT_ATTITUDE.qos,
+            ),
+            (
+                topics::AUTOPILOT_DEPTH.service_name(endpoint),
+                topics::AUTOPILOT_DEPTH.qos,
+            ),
+            (
+                topics::AUTOPILOT_SERVO_OUTPUTS.service_name(endpoint),
+                topics::AUTOPILOT_SERVO_OUTPUTS.qos,
+            ),
+            (
+                topics::AUTOPILOT_STATUS_TEXT.service_name(endpoint),
+                topics::AUTOPILOT_STATUS_TEXT.qos,
             ),
         ];
         if frames {
@@ -396,6 +417,11 @@ mod tests {
         for name in [
             "cabletrack/vehicle/cable_observation",
             "cabletrack/vehicle/learning/yaw",
+            "cabletrack/vehicle/autopilot/state",
+            "cabletrack/vehicle/autopilot/attitude",
+            "cabletrack/vehicle/autopilot/depth",
+            "cabletrack/vehicle/autopilot/servo_outputs",
+            "cabletrack/vehicle/autopilot/status_text",
             "cabletrack/vehicle/heartbeat/perception",
             "cabletrack/shore/mission",
         ] {
@@ -410,6 +436,8 @@ mod tests {
             "cabletrack/vehicle/heartbeat/",
             "cabletrack/vehicle/heartbeat/a/b",
             "cabletrack/vehicle/cable_observation/x",
+            "cabletrack/vehicle/autopilot/",
+            "cabletrack/vehicle/autopilot/state/x",
         ] {
             assert!(!allow.admits(name), "{name}");
         }

@@ -363,6 +363,9 @@ fn iox_config(iox: &Iox) -> Result<IoxConfig> {
         topics::CABLE_OBSERVATION.qos,
         topics::THRUSTER_SETPOINTS.qos,
         topics::SWAY_LEARNING.qos,
+        topics::AUTOPILOT_STATE.qos,
+        topics::AUTOPILOT_ATTITUDE.qos,
+        topics::AUTOPILOT_STATUS_TEXT.qos,
         shore::MISSION.qos,
     ];
     let max = |f: fn(&messages::Qos) -> usize| all.iter().map(f).max().unwrap_or(1);

@@ -219,9 +219,11 @@ pub struct StepTag {
 /// The name of the lockstep tag.
 pub const STEP_TAG: &str = "ct_step";
 
-/// What was refused or dropped, by cause (the shell logs them).
+/// What was taken, refused or dropped, by cause (the shell logs them).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Counters {
+    /// MANUAL_CONTROL taken: from a ground station, for this system.
+    pub manual_control: u64,
     /// MANUAL_CONTROL from a system id that is not a ground station's.
     pub not_from_gcs: u64,
     /// MANUAL_CONTROL addressed to another system.
@@ -549,6 +551,7 @@ impl ArduSub {
                     self.counters.not_for_us += 1;
                     return None;
                 }
+                self.counters.manual_control += 1;
                 self.pilot(
                     now,
                     Axes {

@@ -280,8 +280,10 @@ fn manual_control_only_from_a_ground_station_and_for_this_system() {
     say(&mut a, t0, 252, &other);
     assert_eq!(a.sticks(), Sticks::NEUTRAL);
     assert_eq!(a.counters().not_for_us, 1);
+    assert_eq!(a.counters().manual_control, 0, "neither was taken");
     say(&mut a, t0, 252, &manual(1000, 0, 500, 0));
     assert_eq!(a.sticks().forward, 1700);
+    assert_eq!(a.counters().manual_control, 1);
     // HI below MAV_GCS_SYSID: only MAV_GCS_SYSID itself (the default, 255).
     let d = sub(t0);
     assert!(d.is_gcs(255) && !d.is_gcs(254));

@@ -10,7 +10,9 @@ use iceoryx2::node::{NodeState as IoxNodeState, NodeView};
 use iceoryx2::prelude::*;
 use messages::ports::Payload;
 use messages::{Inbox, Stamp, Stamped, topics};
-use monitor::status::{LearnerStatus, NodeState, ServiceStatus, Status, TopicStatus};
+use monitor::status::{
+    AutopilotStatus, LearnerStatus, NodeState, ServiceStatus, Status, TopicStatus,
+};
 use runtime::{CommonArgs, Flow, Timer};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -107,6 +109,13 @@ fn main() -> ExitCode {
             (Dof::Sway, Count::open(rt, &topics::SWAY_LEARNING)?, None),
             (Dof::Yaw, Count::open(rt, &topics::YAW_LEARNING)?, None),
         ];
+        // The autopilot's telemetry (a driver piloting ArduSub): the latest of each topic.
+        let autopilot_state = rt.inbox(&topics::AUTOPILOT_STATE)?;
+        let autopilot_depth = rt.inbox(&topics::AUTOPILOT_DEPTH)?;
+        let autopilot_servos = rt.inbox(&topics::AUTOPILOT_SERVO_OUTPUTS)?;
+        let autopilot_text = rt.inbox(&topics::AUTOPILOT_STATUS_TEXT)?;
+        let (mut ap_reports, mut ap_state, mut ap_depth, mut ap_servos, mut ap_text) =
+            (0u64, None, None, None, None);
         let frames = rt.frame_inbox()?;
         let (mut frame_count, mut frame_last) = (0u64, None::<Stamp>);
         let mut last_beat: Vec<Option<(Instant, usize)>> = vec![None; beats.len()];
@@ -136,6 +145,13 @@ fn main() -> ExitCode {
                         *latest = Some(s);
                     }
                 }
+                for m in autopilot_state.drain()? {
+                    ap_reports += counting as u64;
+                    ap_state = Some(m);
+                }
+                ap_depth = autopilot_depth.drain()?.pop().or(ap_depth);
+                ap_servos = autopilot_servos.drain()?.pop().or(ap_servos);
+                ap_text = autopilot_text.drain()?.pop().or(ap_text);
                 while let Some(stamp) = frames.receive_with(|h, _| h.stamp)? {
                     frame_count += counting as u64;
                     frame_last = Some(stamp);
@@ -209,6 +225,13 @@ fn main() -> ExitCode {
                 .iter()
                 .filter_map(|(dof, _, s)| s.as_ref().map(|s| LearnerStatus::new(*dof, s)))
                 .collect(),
+            autopilot: AutopilotStatus::new(
+                ap_reports,
+                ap_state.as_ref(),
+                ap_depth.as_ref(),
+                ap_servos.as_ref(),
+                ap_text.as_ref(),
+            ),
         };
         if args.json {
             cli::outln!("{}", serde_json::to_string_pretty(&status)?)?;
