@@ -1,6 +1,6 @@
 //! `monitor`: prints each episode's returns as the mesh learns, and writes the run's record (after
 //! every episode, so a restarted monitor carries on from it). Reports whose stamp is refused
-//! (`runtime::lockstep::Screen`) or that cannot be true (`monitor::check`) are not recorded.
+//! (`runtime::screen::Screen`) or that cannot be true (`monitor::check`) are not recorded.
 
 use anyhow::Context;
 use clap::Parser;
@@ -8,7 +8,7 @@ use config::Dof;
 use messages::topics;
 use monitor::Episodes;
 use records::{RunRecord, TracePoint};
-use runtime::lockstep::{Screen, ScreenLimits, Verdict};
+use runtime::screen::{Screen, ScreenLimits, Verdict};
 use runtime::{CommonArgs, Flow, Tally, Timer};
 use std::io::Write;
 use std::path::PathBuf;
@@ -78,7 +78,7 @@ fn main() -> ExitCode {
         // trial, so its age says little, and a producer whose clock is behind (a camera restarted
         // with its time base stepped back) cannot show its pace before its next trial; timed,
         // every report of that epoch would be refused. A forged `seq` in the live epoch is still
-        // refused: the jump is bounded (`lockstep::MAX_UNTIMED_JUMP` steps, many trials).
+        // refused: the jump is bounded (`screen::MAX_UNTIMED_JUMP` steps, many trials).
         let limits = ScreenLimits::control(rt.scenario().timing.sample_time_s);
         let untimed = |s: &messages::Stamp| messages::Stamp { clock_ns: 0, ..*s };
         let floors = inboxes
@@ -112,6 +112,10 @@ fn main() -> ExitCode {
                 .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
             Ok(())
         };
+        // Its inboxes are open: where it is an observer (the sim mesh, whose loop can run all its
+        // episodes in less time than a process takes to start), the loop starts now, so no report
+        // goes by before it listens.
+        rt.ready();
         rt.serve(&listeners, Timer::Timeout(Duration::from_secs(1)), |_| {
             if let (Some(observations), Some(out)) = (&trace_in, &mut trace_out) {
                 for o in observations.drain()? {

@@ -13,6 +13,7 @@ use foxglove::{
     RawChannel, Schema, WebSocketServerHandle,
 };
 use messages::{CableObservationMsg, CameraFrameHeader, RecorderStatus};
+use runtime::clock::unix_ns;
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
@@ -20,7 +21,6 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::{SystemTime, UNIX_EPOCH};
 
 /// How a record is written.
 #[derive(Clone, Debug, PartialEq)]
@@ -134,12 +134,6 @@ pub struct FlightRecorder {
     waiting: std::collections::VecDeque<CableObservationMsg>,
     buf: Vec<u8>,
     live: Option<WebSocketServerHandle>,
-}
-
-fn unix_ns() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as u64)
 }
 
 impl FlightRecorder {
