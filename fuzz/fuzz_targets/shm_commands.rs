@@ -7,7 +7,7 @@ use cabletrack_fuzz::{take, take_u64};
 use config::Scenario;
 use libfuzzer_sys::fuzz_target;
 use messages::DofCommand;
-use runtime::lockstep::{Screen, ScreenLimits};
+use runtime::screen::{Screen, ScreenLimits};
 use std::time::{Duration, Instant};
 use thruster_allocator::Allocator;
 use thruster_allocator::step::{Event, Input, StepAllocator};
@@ -20,14 +20,14 @@ fuzz_target!(|data: &[u8]| {
         Screen::new("commands", ScreenLimits::control(0.2)),
     );
     let start = Instant::now();
-    let mut clock_ns = 3_600_000_000_000u64;
+    let mut clock_ns = 3_600_000_000_000i64;
     while let Some(&which) = rest.first() {
         rest = &rest[1..];
-        clock_ns += take_u64(&mut rest, 2) * 1_000;
+        clock_ns += take_u64(&mut rest, 2) as i64 * 1_000;
         let Some(cmd) = take::<DofCommand>(&mut rest) else {
             return;
         };
-        let now = start + Duration::from_nanos(clock_ns - 3_600_000_000_000);
+        let now = start + Duration::from_nanos((clock_ns - 3_600_000_000_000) as u64);
         let input = Input::ALL[usize::from(which % 3)];
         check(allocator.on_command(input, cmd, now, clock_ns));
         if which & 0x80 != 0 {

@@ -6,7 +6,7 @@ use adapters::record::NullSink;
 use cabletrack_fuzz::{take, take_u64};
 use libfuzzer_sys::fuzz_target;
 use messages::ThrusterSetpoints;
-use runtime::lockstep::{Screen, ScreenLimits};
+use runtime::screen::{Screen, ScreenLimits};
 use thruster_driver::{Driver, Taken};
 
 fuzz_target!(|data: &[u8]| {
@@ -16,9 +16,9 @@ fuzz_target!(|data: &[u8]| {
         Screen::new("setpoints", ScreenLimits::control(0.2)),
     );
     driver.start().expect("the sink starts");
-    let mut now_ns = 3_600_000_000_000u64;
+    let mut now_ns = 3_600_000_000_000i64;
     while !rest.is_empty() {
-        now_ns += take_u64(&mut rest, 2) * 1_000;
+        now_ns += take_u64(&mut rest, 2) as i64 * 1_000;
         let Some(msg) = take::<ThrusterSetpoints>(&mut rest) else {
             return;
         };
