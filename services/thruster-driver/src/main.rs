@@ -60,8 +60,16 @@ fn open_sink(rt: &Runtime, spec: &SinkSpec) -> anyhow::Result<Box<dyn ThrusterSi
             let clock = *rt.clock();
             let publishers = Publishers::open(rt.node(), rt.endpoint(), move || clock.now_ns())?;
             let layout = ThrusterLayout::new(&rt.scenario().thrusters);
+            // Under a `[pilot]` the commands go out as step one's model of the sticks assumes.
+            let spec = match &rt.scenario().pilot {
+                Some(pilot) => (**spec)
+                    .clone()
+                    .with_pilot(pilot)
+                    .map_err(anyhow::Error::msg)?,
+                None => (**spec).clone(),
+            };
             Box::new(ArduSubSink::open(
-                spec,
+                &spec,
                 layout,
                 runtime::restarts() > 0,
                 Some(publishers),

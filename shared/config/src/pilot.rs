@@ -3,9 +3,8 @@
 //!
 //! The stack's command of 1 on a DOF stands for a fraction of the pilot's full stick on that axis
 //! (at joystick gain 1): the axis is `command x fraction x 1000 / gain` (`model::pilot`), into which
-//! the vehicle twin, whose thrusters are the autopilot's, turns the setpoints it receives (the
-//! `ardusub` thruster sink does not read `[pilot]` yet: it sends a command as that share of the
-//! axis's full thrust). What a stick does depends on the autopilot's mode: in MANUAL
+//! the vehicle twin, whose thrusters are the autopilot's, turns the setpoints it receives, and which
+//! the `ardusub` thruster sink sends, in `[pilot]`'s mode. What a stick does depends on the autopilot's mode: in MANUAL
 //! every axis is thrust; in STABILIZE and ALT_HOLD (ArduSub's `mode_althold.cpp`) forward and
 //! lateral stay thrust while the yaw stick is a yaw-rate command that ArduSub's own fast rate loop
 //! follows. [`PilotParams::commanded`] is the model of what the stack's commands then do to the

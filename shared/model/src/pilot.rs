@@ -1,8 +1,8 @@
 //! The stack's commands as the sticks of an autopilot's pilot (`scenario.toml [pilot]`): the
 //! conversion the vehicle twin applies to the setpoints of its thruster topic (its autopilot takes
 //! them as MANUAL_CONTROL's axes), and the one a MAVLink companion must send for the vehicle to do
-//! what step one's model says. The `ardusub` thruster sink does not read `[pilot]` yet: it sends
-//! `command x 1000 / gain`, a command of 1 being the axis's full thrust.
+//! what step one's model says (the `ardusub` thruster sink sends the same axes, with the gain the
+//! autopilot reports).
 //!
 //! The allocator's setpoints become the generalised forces they make with the scenario's layout
 //! ([`ThrusterLayout::forces`]): each DOF's command as the behaviours and the surge rule gave it

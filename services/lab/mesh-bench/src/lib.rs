@@ -29,6 +29,7 @@
 //! caches before any perceiving. The fault drill of the vehicle's safety layer (`fault-drill`)
 //! starts and watches its meshes with this crate's [`runs`] and [`probe`].
 
+pub mod cuts;
 pub mod probe;
 pub mod procfs;
 pub mod report;

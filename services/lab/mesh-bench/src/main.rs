@@ -108,6 +108,40 @@ struct RecordArgs {
 }
 
 #[derive(Args)]
+struct CutsArgs {
+    /// SIGKILLs of the processes that write files (the recorder, the behaviours, the monitor).
+    #[arg(long, default_value_t = 100)]
+    cuts: u32,
+    /// Seed of the random choices and of the mesh.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// The shortest and longest time between two cuts, in seconds.
+    #[arg(long, num_args = 2, default_values_t = [0.3, 1.5], value_name = "S")]
+    between: Vec<f64>,
+    /// Put the vehicle's files on a tmpfs of this many MiB of its own (a mount namespace of the
+    /// run's; needs root), which the flight record fills.
+    #[arg(long, value_name = "MIB")]
+    disk_mb: Option<u64>,
+    /// Step one's episodes in simulation, before the vehicle run.
+    #[arg(long, default_value_t = 10)]
+    sim_episodes: u32,
+    #[command(flatten)]
+    files: runs::VehicleFiles,
+    /// The Python interpreter with the `mcap` package (scripts/install-mcap-py).
+    #[arg(long, default_value = "target/mcap-venv/bin/python")]
+    python: PathBuf,
+    /// The script that reads records with it.
+    #[arg(
+        long,
+        default_value = "services/mesh/recorder/tests/read_cut_records.py"
+    )]
+    reader: PathBuf,
+    /// Write the figures here as JSON (and the vehicle mesh's log beside it, as .log).
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+#[derive(Args)]
 struct RingArgs {
     /// The path the ring takes.
     #[arg(long, value_enum, default_value_t = Shape::Vehicle)]
@@ -142,6 +176,10 @@ enum Hidden {
     /// The flight recorder's cost: the mesh's steps/s with the recorder off and on (pairs of runs,
     /// swapping places every repeat), the recorder's CPU per step and the record's bytes per step.
     Record(RecordArgs),
+    /// SIGKILLs at random moments of the processes that write files (the recorder, the behaviours,
+    /// the monitor), optionally on a small file system that fills; every file read afterwards by
+    /// readers that are not the project's.
+    Cuts(CutsArgs),
     /// The vehicle endpoint: camera-to-thruster latency at 5 Hz over many steps, CPU and memory of
     /// every service (step one runs first, in simulation, for the policy the vehicle starts from).
     Vehicle(VehicleArgs),
@@ -218,6 +256,7 @@ fn main() -> ExitCode {
         Some(Hidden::Latencies { files }) => latencies(&files),
         Some(Hidden::Record(a)) => logged(|| record(&a)),
         Some(Hidden::Vehicle(a)) => logged(|| vehicle(&a)),
+        Some(Hidden::Cuts(a)) => logged(|| cuts(&a)),
         Some(Hidden::Ring(a)) => logged(|| bare_ring(&a)),
         None => logged(|| bench(&args)),
     };
@@ -285,6 +324,36 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
         args.json.as_deref(),
         args.markdown.as_deref(),
     )
+}
+
+fn cuts(args: &CutsArgs) -> Result<()> {
+    let setup = mesh_bench::cuts::CutsSetup {
+        run: runs::VehicleRunSetup::new(&args.files, args.seed, args.sim_episodes)?,
+        cuts: args.cuts,
+        between_s: (args.between[0], args.between[1].max(args.between[0])),
+        disk_mb: args.disk_mb,
+        // Not resolved: the virtual environment's interpreter is a link to the system's.
+        python: std::path::absolute(&args.python)?,
+        reader: args
+            .reader
+            .canonicalize()
+            .with_context(|| format!("the reader script {}", args.reader.display()))?,
+        keep_log: args.json.as_ref().map(|j| j.with_extension("log")),
+    };
+    if !setup.python.exists() {
+        anyhow::bail!(
+            "{} is missing: run scripts/install-mcap-py",
+            setup.python.display()
+        );
+    }
+    let run = mesh_bench::cuts::run(&setup)?;
+    cli::outln!("{}", serde_json::to_string_pretty(&run)?)?;
+    cli::outln!("{}", run.markdown())?;
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_string_pretty(&run)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
 }
 
 /// Prints several invocations' figures (their `--json` files) side by side.

@@ -25,8 +25,8 @@
 //! input it holds: the vehicle behind its autopilot, as the stack meets a BlueROV2. The pilot is
 //! the stack either way. On the twin's thruster topic ([`Twin::advance`]) the twin does what a
 //! MAVLink companion does: it takes off in `scenario.toml [pilot]`'s mode and turns the setpoints
-//! answering a frame into the pilot's sticks (`model::pilot`, with `[pilot]`'s fractions, which the
-//! `ardusub` thruster sink does not apply yet); a failsafe stop is neutral sticks,
+//! answering a frame into the pilot's sticks (`model::pilot`, with `[pilot]`'s fractions, as the
+//! `ardusub` thruster sink does over MAVLink); a failsafe stop is neutral sticks,
 //! and the autopilot's own pilot-input failsafe replaces the thrusters' watchdog. Over MAVLink
 //! (`vehicle-twin --autopilot URL`, [`Twin::advance_piloted`]) the stack's side sends the sticks
 //! and commands itself. The plant is the vehicle's own model (`scenario.toml [model]`), at full

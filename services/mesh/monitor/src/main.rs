@@ -100,29 +100,61 @@ fn main() -> ExitCode {
             "episode | steps | lost | eval |  yaw return | sway return | yaw K              | sway K"
         )?;
         let sample_time = rt.scenario().timing.sample_time_s;
-        let write = |episodes: &Episodes| -> anyhow::Result<()> {
+        // The run record replaces itself whole after every episode (`durable::replace`), so a
+        // SIGKILL or a power cut leaves the last episode's record, never a torn one. A write that
+        // fails (a full disk) is said once, and the run goes on: the next episode tries again.
+        let mut outage = durable::Outage::default();
+        let mut write = |episodes: &Episodes| -> anyhow::Result<()> {
             let Some(path) = &args.json else {
                 return Ok(());
             };
             let record = episodes.record(start.elapsed().as_secs_f64());
-            let tmp = path.with_extension("json.tmp");
-            std::fs::write(&tmp, serde_json::to_string(&record)?)
-                .with_context(|| format!("writing {}", tmp.display()))?;
-            std::fs::rename(&tmp, path)
-                .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
+            let json = serde_json::to_vec(&record)?;
+            match durable::replace(path, &json) {
+                Ok(()) => {
+                    if let Some(failed) = outage.succeeded() {
+                        tracing::info!(path = %path.display(), failed, "the run record is written again");
+                    }
+                }
+                Err(e) => {
+                    if outage.failed() {
+                        let full = if e.is_disk_full() {
+                            " (the disk is full)"
+                        } else {
+                            ""
+                        };
+                        tracing::error!(
+                            "the run record is not written{full}: {:#}; the run goes on, each episode tries again, {} keeps the last record written",
+                            anyhow::Error::from(e),
+                            path.display()
+                        );
+                    }
+                }
+            }
             Ok(())
         };
         // Its inboxes are open: where it is an observer (the sim mesh, whose loop can run all its
         // episodes in less time than a process takes to start), the loop starts now, so no report
         // goes by before it listens.
         rt.ready();
+        let mut trace_failed = false;
         rt.serve(&listeners, Timer::Timeout(Duration::from_secs(1)), |_| {
             if let (Some(observations), Some(out)) = (&trace_in, &mut trace_out) {
+                let mut written = Ok(());
                 for o in observations.drain()? {
                     let line = TracePoint::new(&o, sample_time);
-                    serde_json::to_writer(&mut *out, &line)?;
-                    out.write_all(b"\n")?;
+                    written = written
+                        .and_then(|()| serde_json::to_writer(&mut *out, &line).map_err(std::io::Error::from))
+                        .and_then(|()| out.write_all(b"\n"));
                 }
+                if let Err(e) = written {
+                    // A full disk ends the trace, not the run (nor the run record).
+                    tracing::error!(path = ?args.trace, "the trace stops here: {e}");
+                    trace_failed = true;
+                }
+            }
+            if trace_failed {
+                trace_out = None;
             }
             for (((dof, inbox), screen), floor) in inboxes.iter().zip(&mut screens).zip(&floors) {
                 for stats in inbox.drain()? {
@@ -160,8 +192,10 @@ fn main() -> ExitCode {
             }
             Ok(Flow::Continue)
         })?;
-        if let Some(out) = &mut trace_out {
-            out.flush()?;
+        if let Some(out) = &mut trace_out
+            && let Err(e) = out.flush()
+        {
+            tracing::error!(path = ?args.trace, "the trace's end is not written: {e}");
         }
         let record = episodes.record(start.elapsed().as_secs_f64());
         let gaps = episodes.gaps();

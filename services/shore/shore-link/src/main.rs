@@ -387,7 +387,6 @@ fn node(cfg: &IoxConfig, name: &str) -> Result<Node<ipc::Service>> {
         .map_err(|e| anyhow!("cannot create node `{name}`: {e:?}"))
 }
 
-
 /// Writes one JSON line.
 fn line(out: &mut impl Write, value: &serde_json::Value) -> Result<()> {
     serde_json::to_writer(&mut *out, value)?;
