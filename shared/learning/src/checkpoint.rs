@@ -407,7 +407,8 @@ impl Checkpoint {
         if found < payload_len {
             return Err(CheckpointError::Truncated {
                 path: path.to_owned(),
-                expected: HEADER_LEN as u64 + payload_len,
+                // The length is the file's word: it may be anything up to u64::MAX.
+                expected: (HEADER_LEN as u64).saturating_add(payload_len),
                 found: HEADER_LEN as u64 + found,
             });
         }

@@ -12,6 +12,11 @@ use std::collections::BTreeMap;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
+/// The largest record read (bytes): far above any the recorder writes (a 1920x1080 mono8 frame is
+/// 2 MB), so that a record's length, which the file states, cannot make the reader allocate
+/// without bound before it finds the file too short.
+pub const RECORD_LENGTH_LIMIT: usize = 64 << 20;
+
 /// One message of a record.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Message {
@@ -122,7 +127,11 @@ impl Reader {
                     path: part.clone(),
                     source,
                 })?;
-                let reader = mcap::io::MessageReader::new(BufReader::with_capacity(1 << 20, file));
+                let reader = mcap::io::MessageReader::new_with_options(
+                    BufReader::with_capacity(1 << 20, file),
+                    mcap::sans_io::LinearReaderOptions::default()
+                        .with_record_length_limit(RECORD_LENGTH_LIMIT),
+                );
                 self.current = Some((part, 0, reader));
                 continue;
             };
