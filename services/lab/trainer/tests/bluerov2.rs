@@ -89,6 +89,7 @@ fn the_simulation_policy_flies_the_bluerov2_twin_close_to_its_limit() {
         &s.learning,
         &twin,
         experiment::lqr_gains(&s).unwrap(),
+        &[],
         &SearchParams {
             eyes: Eyes::Ideal,
             ..SearchParams::default()
@@ -103,8 +104,15 @@ fn the_simulation_policy_flies_the_bluerov2_twin_close_to_its_limit() {
         trials: 20,
         sim_episodes: 100,
         eyes: Eyes::Ideal,
+        sim_eyes: Eyes::Ideal,
         held_out: 0,
         every_trial: false,
+        limit_search: SearchParams {
+            eyes: Eyes::Ideal,
+            ..SearchParams::default()
+        },
+        limit_rounds: 1,
+        limit_seed: 1,
     };
     let results = run(
         &s.scenario,
@@ -112,6 +120,8 @@ fn the_simulation_policy_flies_the_bluerov2_twin_close_to_its_limit() {
         &twin,
         &limit,
         &params,
+        &params.seeds,
+        0,
         &Progress::hidden(),
     )
     .unwrap();
