@@ -100,8 +100,9 @@ macro_rules! key {
     (by_seq, $m:expr) => {
         Key::Seq($m.seq)
     };
+    // The vehicle clock is signed: flipping the sign bit keeps its order in the key's u64.
     (by_clock, $m:expr) => {
-        Key::Seq($m.clock_ns)
+        Key::Seq(($m.clock_ns as u64) ^ (1 << 63))
     };
 }
 
