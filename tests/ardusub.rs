@@ -356,7 +356,7 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-fn secs(ns: u64) -> f64 {
+fn secs(ns: i64) -> f64 {
     ns as f64 / 1e9
 }
 

@@ -1,15 +1,17 @@
 //! The main job, `scripts/two-step-learning`, end to end on the service mesh: step one in simulation
 //! (every service a process), the twin's limit, the evaluations through the vehicle mesh (the camera's
-//! twin frame source, the allocator's twin thruster sink, the supervisor with `config/vehicle.toml`),
-//! step two with its evaluations and safety layer, and the report.
+//! twin frame source, the thruster driver's twin thruster sink, the supervisor with
+//! `config/vehicle.toml`), step two with its evaluations and safety layer, and the report.
 //!
 //! What this test shows is that the pieces fit and agree, not how well step two learns (that needs
-//! many seeds, and runs in one process: `services/lab/trainer/tests/step_two.rs` and the README's
-//! benchmark). The run record, `summary.json` and the report hold what they must; and the vehicle mesh
-//! runs the very algorithm of the in-process step two (`trainer::twin_world::TwinWorld`): the same
-//! session trial for trial, and the same evaluated returns for the simulation policy, the twin's
-//! limit and the policy step two ended with. A short run (5 learning trials, a one-generation limit
-//! search, step one with ideal perception) keeps it to a minute or two.
+//! many seeds, and runs in one process: `services/lab/trainer/tests/step_two.rs` and
+//! `scripts/bench-step-two`). The run record, `summary.json` and the report hold what they must; the
+//! vehicle mesh runs the very algorithm of the in-process step two (`trainer::twin_world::TwinWorld`):
+//! the same session trial for trial, and the same evaluated returns for the simulation policy, the
+//! twin's limit and the policy step two ended with; the held-out figures are the protocol's on the
+//! held-out sets; and the report never shows a limit below the simulation policy or step two's beyond
+//! the evaluation's noise. A short run (5 learning trials, a one-generation limit search, step one
+//! with ideal perception, 2 held-out sets) keeps it to a few minutes.
 
 use config::Eyes;
 use config::{Dof, PerDof, Scenario, TwinParams};
@@ -55,6 +57,8 @@ fn the_two_step_job_runs_and_the_mesh_agrees_with_the_in_process_step_two() {
             "1",
             "--limit-population",
             "4",
+            "--held-out",
+            "2",
             "--out",
         ])
         .arg(&out)
@@ -165,11 +169,14 @@ fn the_two_step_job_runs_and_the_mesh_agrees_with_the_in_process_step_two() {
     }
 
     // ... and the policies in DIR/step-one, DIR/twin-limit and DIR/step-two, evaluated by the
-    // protocol in one process, give the returns the summary states from the vehicle mesh.
-    for (policies, part) in [
-        ("step-one", "sim_policy"),
-        ("twin-limit", "limit"),
-        ("step-two", "after"),
+    // protocol in one process, give the returns the summary states from the vehicle mesh; on the
+    // first held-out set, those the summary states there, with the cables lost.
+    let held_out = &summary["held_out"];
+    assert_eq!(held_out["sets"].as_array().map(Vec::len), Some(2));
+    for (policies, part, held) in [
+        ("step-one", "sim_policy", "sim_policy"),
+        ("twin-limit", "limit", "limit"),
+        ("step-two", "after", "after"),
     ] {
         let c = load_policies(&out.join(policies)).unwrap();
         let j = evaluate(&scenario, &twin, Eyes::Images, &c, SEED, e)
@@ -179,6 +186,18 @@ fn the_two_step_job_runs_and_the_mesh_agrees_with_the_in_process_step_two() {
             sway: number(&summary["evaluation"][part]["sway"], part),
             yaw: number(&summary["evaluation"][part]["yaw"], part),
         };
+        let h = &held_out[held];
+        let sets: Vec<u64> = serde_json::from_value(held_out["sets"].clone()).unwrap();
+        let others: Vec<_> = sets
+            .iter()
+            .map(|&set| evaluate(&scenario, &twin, Eyes::Images, &c, set, e).unwrap())
+            .collect();
+        assert_eq!(h["trials"].as_u64(), Some(2 * e as u64), "{held}");
+        assert_eq!(
+            h["lost"].as_u64(),
+            Some(others.iter().map(|o| o.lost as u64).sum()),
+            "{held}: cables lost on the held-out sets"
+        );
         for dof in Dof::ALL {
             assert!(
                 close(*j.get(dof), *stated.get(dof)),
@@ -186,6 +205,49 @@ fn the_two_step_job_runs_and_the_mesh_agrees_with_the_in_process_step_two() {
                 j.get(dof),
                 stated.get(dof)
             );
+            for (i, other) in others.iter().enumerate() {
+                let on_set = number(&h["returns"][dof.name()][i], held);
+                assert!(
+                    close(*other.mean().get(dof), on_set),
+                    "{policies} {dof} on held-out set {}: in one process {}, the summary {on_set}",
+                    sets[i],
+                    other.mean().get(dof)
+                );
+            }
         }
     }
+
+    // The limit is a limit: not below the simulation policy nor step two's on the evaluation set by
+    // more than twice the evaluation's noise (the spread of J_after - J_sim over the held-out sets),
+    // and the summary says so. (A policy that lost the cable in more trials than the limit failed,
+    // whatever its return: a trial cut short costs less than a whole one.)
+    let lost = |name: &str| {
+        read(&out.join(name).join("run.json"))
+            .lost
+            .iter()
+            .filter(|l| **l)
+            .count()
+    };
+    let limit_lost = lost("eval-limit");
+    for dof in ["yaw", "sway"] {
+        assert!(
+            summary["limit_check"]["beaten"][dof].is_null(),
+            "{dof}: {:#}",
+            summary["limit_check"]
+        );
+        let noise = number(&held_out["noise"][dof], "held_out.noise");
+        let j = |part: &str| number(&summary["evaluation"][part][dof], part);
+        for (part, run) in [("sim_policy", "eval"), ("after", "eval-after")] {
+            if lost(run) > limit_lost {
+                continue;
+            }
+            assert!(
+                j("limit") >= j(part) - 2.0 * noise,
+                "{dof}: the limit {} is below the {part} {} beyond twice the noise {noise}",
+                j("limit"),
+                j(part)
+            );
+        }
+    }
+    assert_eq!(summary["limit_check"]["searched_with"], "images");
 }

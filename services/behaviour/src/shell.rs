@@ -227,6 +227,7 @@ pub fn serve(rt: &Runtime, dof: Dof, args: &Args) -> anyhow::Result<()> {
     let limits = rt.scenario().observation.clone();
     let mut bad = BadValues::new(observations.service());
     let clock = *rt.clock();
+    let mut outage = durable::Outage::default();
     let served = rt.serve_steps(
         &observations,
         &mut behaviour,
@@ -268,10 +269,24 @@ pub fn serve(rt: &Runtime, dof: Dof, args: &Args) -> anyhow::Result<()> {
             if let Some(store) = saver.as_mut()
                 && args.save_every > 0
                 && episodes.is_multiple_of(args.save_every)
-                && let Err(e) = save(store, behaviour)
             {
-                // Keep controlling the vehicle; the next save tries again.
-                tracing::error!("periodic checkpoint failed: {e:#}");
+                match save(store, behaviour) {
+                    Ok(()) => {
+                        if let Some(failed) = outage.succeeded() {
+                            tracing::info!(failed, "checkpoints are saved again");
+                        }
+                    }
+                    // Keep controlling the vehicle; the next save tries again. Said once, not at
+                    // every episode of a full disk.
+                    Err(e) => {
+                        if outage.failed() {
+                            tracing::error!(
+                                "periodic checkpoint failed: {e:#}; the behaviour goes on, each save tries again (the previous checkpoint {} is kept)",
+                                store.prev().display()
+                            );
+                        }
+                    }
+                }
             }
             Ok(Flow::Continue)
         },

@@ -86,12 +86,13 @@ pub fn session_trials(evaluation: &EvaluationParams, learning_trials: u32) -> u3
 }
 
 /// The identified linear model of `dof` (paper Table I, the decoupled (position, rate) dynamics of
-/// its observation), discretised exactly at the sample time: what the stability guard and the LQR
-/// yardstick know of the vehicle.
+/// its observation, under the commands the stack gives: `Scenario::commanded_model`), discretised
+/// exactly at the sample time: what the stability guard and the LQR yardstick know of the vehicle.
 pub fn identified_model(scenario: &Scenario, dof: Dof) -> Result<DiscreteSystem<2, 1>, LqrError> {
+    let commanded = scenario.commanded_model();
     let lin = match dof {
-        Dof::Sway => model::linear::sway(&scenario.model, &model::Camera::new(&scenario.camera)),
-        Dof::Yaw => model::linear::yaw(&scenario.model),
+        Dof::Sway => model::linear::sway(&commanded, &model::Camera::new(&scenario.camera)),
+        Dof::Yaw => model::linear::yaw(&commanded),
     };
     discretize_zoh(&lin.a, &lin.b, scenario.timing.sample_time_s)
 }

@@ -90,7 +90,7 @@ impl SeqMap {
 
 /// The header of a source's frame published with the camera's `seq` in its `epoch`, read at
 /// `clock_ns` on the vehicle clock.
-pub fn header(meta: &FrameMeta, seq: u64, epoch: u32, clock_ns: u64) -> CameraFrameHeader {
+pub fn header(meta: &FrameMeta, seq: u64, epoch: u32, clock_ns: i64) -> CameraFrameHeader {
     CameraFrameHeader {
         stamp: Stamp::new(seq, meta.time_ns, meta.trial, meta.step, meta.status)
             .timed(epoch, clock_ns),
@@ -165,7 +165,7 @@ impl VehicleCamera {
 
     /// What to publish for a read's outcome at `clock_ns` on the vehicle clock (`meta` is the frame
     /// read, for `Frame` and `Repeat`).
-    pub fn on_read(&mut self, read: Read, meta: &FrameMeta, clock_ns: u64) -> Publish {
+    pub fn on_read(&mut self, read: Read, meta: &FrameMeta, clock_ns: i64) -> Publish {
         match read {
             Read::Frame => {
                 let h = header(meta, self.seq.next(meta.seq), self.epoch, clock_ns);

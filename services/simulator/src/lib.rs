@@ -41,13 +41,18 @@ pub struct Simulator {
     rng: StdRng,
     current: SimStep,
     started: bool,
+    /// Control periods integrated since the start of the run: the clock. Simulated time is this
+    /// count times the sample time, not a sum of sample times, whose rounding grows with the run
+    /// (after 14,796 periods of 0.2 s the sum's nanoseconds step by 199,999,999, and the mesh's
+    /// perception, which takes its period from the stamps, no longer saw the trainer's 0.2 s).
+    periods: u64,
 }
 
 impl Simulator {
     /// A simulator of `scenario` whose resets draw from `seed`; call [`Simulator::reset`] to start.
     pub fn new(scenario: &Scenario, seed: u64) -> Self {
         Simulator {
-            dynamics: Dynamics::new(scenario.model.clone()),
+            dynamics: Dynamics::new(scenario.commanded_model()),
             layout: ThrusterLayout::new(&scenario.thrusters),
             camera: Camera::new(&scenario.camera),
             cable: Cable::new(&scenario.cable),
@@ -62,6 +67,7 @@ impl Simulator {
                 status: StepStatus::Running,
             },
             started: false,
+            periods: 0,
         }
     }
 
@@ -117,6 +123,7 @@ impl Simulator {
         let dt = self.timing.sample_time_s;
         let state = self.dynamics.step(&self.current.state, forces, dt);
         let step = self.current.step + 1;
+        self.periods += 1;
         let status = if self.camera.view(&state.pose, &self.cable).is_none() {
             StepStatus::Lost
         } else if step >= self.timing.max_steps {
@@ -127,7 +134,7 @@ impl Simulator {
         self.current = SimStep {
             episode: self.current.episode,
             step,
-            time_s: self.current.time_s + dt,
+            time_s: self.periods as f64 * dt,
             state,
             status,
         };
@@ -213,5 +220,38 @@ mod tests {
         sim.reset();
         let st = sim.step(&[0.0; 3]);
         assert!((st.time_s - 0.2).abs() < 1e-12);
+    }
+
+    /// Over a long run (200 episodes of 200 steps, more than the 100 of step one), the stamps of
+    /// consecutive steps are exactly one sample time apart in nanoseconds, as perception reads its
+    /// period from them; summing 0.2 s per step, they were 199,999,999 ns apart from step 14,796 on.
+    #[test]
+    fn the_clock_keeps_exact_periods_over_a_long_run() {
+        let s = scenario();
+        let period_ns = (s.timing.sample_time_s * 1e9).round() as u64;
+        let mut sim = Simulator::new(&s, 1);
+        let mut last = lockstep::Published {
+            seq: 0,
+            step: sim.reset(),
+        };
+        for seq in 1..=40_000 {
+            let step = sim.step(&[0.0; 3]);
+            let now = lockstep::Published { seq, step };
+            if step.step > 0 {
+                assert_eq!(
+                    now.stamp().time_ns - last.stamp().time_ns,
+                    period_ns,
+                    "step {seq}"
+                );
+            } else {
+                assert_eq!(
+                    now.stamp().time_ns,
+                    last.stamp().time_ns,
+                    "a reset takes no time"
+                );
+            }
+            last = now;
+        }
+        assert!(last.step.episode >= 100, "{} episodes", last.step.episode);
     }
 }

@@ -21,7 +21,7 @@ fn main() -> ExitCode {
     let args = Args::parse();
     runtime::run("surge-controller", &args.common, |rt| {
         let scenario = rt.scenario();
-        let controller = SurgeController::new(&scenario.surge, &scenario.model.surge);
+        let controller = SurgeController::new(&scenario.surge, &scenario.commanded_model().surge);
         let observations = rt.inbox(&topics::CABLE_OBSERVATION)?;
         let commands = rt.outbox(&topics::SURGE_COMMAND)?;
         let limits = scenario.observation.clone();

@@ -62,7 +62,7 @@ impl Rig {
 fn cruises_at_0_3_m_s_only_while_the_cable_is_centred() {
     let rig = start("sgc");
     let scenario: Scenario = config::load(&testkit::config_dir().join("scenario.toml")).unwrap();
-    let surge = scenario.model.surge;
+    let surge = scenario.commanded_model().surge;
     let cruise = rig.command(observation(1, true, 0.0, 0.0));
     // The thrust that holds 0.3 m/s in steady state, by the identified model (Table I).
     assert!(

@@ -10,7 +10,7 @@
 //! (clipping each thruster alone would turn a pure surge-plus-yaw command into a different mix).
 //!
 //! [`step::StepAllocator`] is the allocator's side of the lockstep: it judges each command's stamp
-//! (`runtime::lockstep::Screen`), gathers the three commands of one step, answers each step once,
+//! (`runtime::screen::Screen`), gathers the three commands of one step, answers each step once,
 //! and allocates a step whose commands did not all arrive within the deadline with the missing ones
 //! as 0. The allocator only publishes its setpoints; on the vehicle the thruster driver
 //! (`thruster-driver`) owns the thrusters.

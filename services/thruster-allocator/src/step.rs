@@ -1,7 +1,7 @@
 //! The allocator in the mesh's lockstep, as a plain state machine fed the time (the
 //! `thruster-allocator` binary binds it to its four ports): the surge, sway and yaw commands of one
 //! step in, that step's thruster setpoints out, computed once. Every command's stamp is judged first
-//! (`runtime::lockstep::Screen`: a stale, older or absurd step is refused; a restarted producer's new
+//! (`runtime::screen::Screen`: a stale, older or absurd step is refused; a restarted producer's new
 //! epoch is followed). A step whose commands do not all arrive within the deadline of its first is
 //! allocated with the missing ones as 0 (their bits set in `ThrusterSetpoints::missing`); an
 //! incomplete step overtaken by a newer one is dropped; a command of a step already answered (a
@@ -10,7 +10,8 @@
 use crate::Allocator;
 use messages::{DofCommand, Stamp, ThrusterSetpoints};
 use model::bounds::Fixes;
-use runtime::lockstep::{Gather, Once, Partial, Refusal, Screen};
+use runtime::lockstep::{Gather, Once, Partial};
+use runtime::screen::{Refusal, Screen};
 use std::time::{Duration, Instant};
 
 /// The allocator's inputs, in the order of the `missing` bits of `ThrusterSetpoints`.
@@ -101,7 +102,7 @@ impl StepAllocator {
         input: Input,
         cmd: DofCommand,
         now: Instant,
-        clock_ns: u64,
+        clock_ns: i64,
     ) -> Event {
         match self.once.check(&cmd.stamp, clock_ns) {
             Err(refusal) => return Event::Refused(refusal),
@@ -124,7 +125,7 @@ impl StepAllocator {
 
     /// Time passed: a step waiting longer than the deadline is allocated without its missing
     /// commands.
-    pub fn on_time(&mut self, now: Instant, clock_ns: u64) -> Event {
+    pub fn on_time(&mut self, now: Instant, clock_ns: i64) -> Event {
         let Some(partial) = self.gather.take_overdue(self.deadline, now) else {
             return Event::Idle;
         };
@@ -146,7 +147,7 @@ impl StepAllocator {
     }
 
     /// The setpoints of step `stamp`, computed once (its commands were judged on arrival).
-    fn answer(&mut self, stamp: Stamp, values: [Option<f64>; 3], clock_ns: u64) -> Event {
+    fn answer(&mut self, stamp: Stamp, values: [Option<f64>; 3], clock_ns: i64) -> Event {
         let (msg, fixes) = setpoints(&self.allocator, stamp, values);
         self.once.commit(&stamp, clock_ns, msg);
         Event::Send {
@@ -193,12 +194,12 @@ mod tests {
         StepAllocator::new(
             Allocator::new(&Scenario::default().thrusters),
             100 * MS,
-            Screen::new("commands", runtime::lockstep::ScreenLimits::control(0.2)),
+            Screen::new("commands", runtime::screen::ScreenLimits::control(0.2)),
         )
     }
 
     /// The vehicle clock in these tests: untimed stamps ignore it.
-    const NOW: u64 = 1;
+    const NOW: i64 = 1;
 
     fn cmd(seq: u64, value: f64) -> DofCommand {
         DofCommand {

@@ -15,7 +15,7 @@
 use adapters::failsafe::{Failsafe, Thrust};
 use adapters::{AdapterError, Applied, StopCause, ThrusterSink};
 use messages::ThrusterSetpoints;
-use runtime::lockstep::{Refusal, Screen, Verdict};
+use runtime::screen::{Refusal, Screen, Verdict};
 use std::time::{Duration, Instant};
 
 /// Which thruster sink the driver owns.
@@ -102,7 +102,7 @@ impl<S: ThrusterSink> Driver<S> {
     pub fn on_setpoints(
         &mut self,
         msg: &ThrusterSetpoints,
-        now_ns: u64,
+        now_ns: i64,
     ) -> Result<Taken, AdapterError> {
         if msg.stop != 0 {
             // Only the driver stops the thrusters: the allocator's topic carries answers.
@@ -119,7 +119,7 @@ impl<S: ThrusterSink> Driver<S> {
             Some(t) if self.on_own_clock(&msg.stamp, now_ns) => t.min(
                 msg.stamp
                     .clock_ns
-                    .saturating_add(self.deadline().as_nanos() as u64),
+                    .saturating_add(self.deadline().as_nanos() as i64),
             ),
             // A producer whose clock is behind: its age is read through its epoch's offset.
             Some(t) => t,
@@ -132,10 +132,10 @@ impl<S: ThrusterSink> Driver<S> {
 
     /// Whether `stamp`'s clock reads as the driver's: taken no later than `now_ns` and less than
     /// the deadline before it.
-    fn on_own_clock(&self, stamp: &messages::Stamp, now_ns: u64) -> bool {
+    fn on_own_clock(&self, stamp: &messages::Stamp, now_ns: i64) -> bool {
         stamp.is_timed()
             && stamp.clock_ns <= now_ns
-            && now_ns - stamp.clock_ns < self.deadline().as_nanos() as u64
+            && now_ns - stamp.clock_ns < self.deadline().as_nanos() as i64
     }
 
     /// The sink's periodic work (a link's heartbeat, a command held at its rate), done now;
@@ -145,12 +145,12 @@ impl<S: ThrusterSink> Driver<S> {
     }
 
     /// Time passed: the stop made now if the setpoints held went stale.
-    pub fn on_time(&mut self, now_ns: u64) -> Result<Option<StopCause>, AdapterError> {
+    pub fn on_time(&mut self, now_ns: i64) -> Result<Option<StopCause>, AdapterError> {
         self.failsafe.on_time(now_ns)
     }
 
     /// How long until the setpoints held go stale (`None` while stopped).
-    pub fn time_left(&self, now_ns: u64) -> Option<Duration> {
+    pub fn time_left(&self, now_ns: i64) -> Option<Duration> {
         self.failsafe.time_left(now_ns)
     }
 
@@ -170,10 +170,10 @@ mod tests {
     use super::*;
     use adapters::record::NullSink;
     use messages::{Stamp, StepStatus};
-    use runtime::lockstep::ScreenLimits;
+    use runtime::screen::ScreenLimits;
 
-    const MS: u64 = 1_000_000;
-    const T0: u64 = 7_200_000 * MS;
+    const MS: i64 = 1_000_000;
+    const T0: i64 = 7_200_000 * MS;
 
     fn driver() -> Driver<NullSink> {
         let mut d = Driver::new(
@@ -184,7 +184,7 @@ mod tests {
         d
     }
 
-    fn setpoints(seq: u64, clock_ns: u64, values: [f64; 3]) -> ThrusterSetpoints {
+    fn setpoints(seq: u64, clock_ns: i64, values: [f64; 3]) -> ThrusterSetpoints {
         let mut m = ThrusterSetpoints {
             stamp: Stamp::new(seq, 0, 0, seq as u32, StepStatus::Running).timed(5, clock_ns),
             count: 3,

@@ -10,7 +10,7 @@ use ardusub::{ArduSubSink, Publishers};
 use clap::Parser;
 use messages::{Endpoint, topics};
 use model::ThrusterLayout;
-use runtime::lockstep::{Screen, ScreenLimits};
+use runtime::screen::{Screen, ScreenLimits};
 use runtime::{BadValues, CommonArgs, Runtime, Watch};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -60,8 +60,16 @@ fn open_sink(rt: &Runtime, spec: &SinkSpec) -> anyhow::Result<Box<dyn ThrusterSi
             let clock = *rt.clock();
             let publishers = Publishers::open(rt.node(), rt.endpoint(), move || clock.now_ns())?;
             let layout = ThrusterLayout::new(&rt.scenario().thrusters);
+            // Under a `[pilot]` the commands go out as step one's model of the sticks assumes.
+            let spec = match &rt.scenario().pilot {
+                Some(pilot) => (**spec)
+                    .clone()
+                    .with_pilot(pilot)
+                    .map_err(anyhow::Error::msg)?,
+                None => (**spec).clone(),
+            };
             Box::new(ArduSubSink::open(
-                spec,
+                &spec,
                 layout,
                 runtime::restarts() > 0,
                 Some(publishers),
@@ -136,7 +144,7 @@ fn main() -> ExitCode {
             // The wait ends up to a millisecond late (its timeout's resolution, the wake-up's
             // latency): setpoints with less than EARLY left count as stale now, so the thrusters stop
             // within the deadline, never after it.
-            if driver.on_time(clock.now_ns() + EARLY.as_nanos() as u64)?.is_some() {
+            if driver.on_time(clock.now_ns() + EARLY.as_nanos() as i64)?.is_some() {
                 tracing::warn!(cause = "deadline", deadline_ms = deadline.as_millis() as u64, "thrusters stopped: no fresh setpoints within the deadline");
             }
             // The sink's own work (ArduSub's steady stick and heartbeat) from this thread alone: if

@@ -433,7 +433,8 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
 
     // Timed stamps, as on the vehicle: everything in them arrives.
     let stamp = |seq: u64, status: StepStatus| {
-        Stamp::new(seq, seq * 200_000_000, 2, seq as u32, status).timed(77, 5_000_000_000 + seq)
+        Stamp::new(seq, seq * 200_000_000, 2, seq as u32, status)
+            .timed(77, 5_000_000_000 + seq as i64)
     };
     let mut sink = rig
         .open(3)
@@ -624,7 +625,7 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
         .open(3)
         .unwrap_or_else(|e| panic!("{name}: cannot open a sink of 3: {e}"));
     let deadline = Duration::from_millis(400);
-    let ms = 1_000_000u64;
+    let ms = 1_000_000i64;
     let mut failsafe = Failsafe::new(sink, deadline);
     failsafe
         .start()

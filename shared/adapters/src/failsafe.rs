@@ -5,7 +5,7 @@
 //! wakes it on time; the conformance suite drives it over every sink with a clock of its own.
 //!
 //! Freshness: setpoints are valid until the time given with them (the driver gives the step's age
-//! limit on its clock, `runtime::lockstep::Screen::fresh_until`, or arrival plus the deadline for
+//! limit on its clock, `runtime::screen::Screen::fresh_until`, or arrival plus the deadline for
 //! untimed stamps). Once that passes without newer ones, [`Failsafe::on_time`] stops the thrusters,
 //! once, until setpoints come again.
 
@@ -16,7 +16,7 @@ use std::time::Duration;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Thrust {
     /// Driven by setpoints valid until this time (ns).
-    Driven { until_ns: u64 },
+    Driven { until_ns: i64 },
     /// Stopped, for this cause.
     Stopped(StopCause),
 }
@@ -75,7 +75,7 @@ impl<S: ThrusterSink> Failsafe<S> {
         &mut self,
         stamp: &Stamp,
         setpoints: &[f64],
-        until_ns: u64,
+        until_ns: i64,
     ) -> Result<Applied, AdapterError> {
         let applied = self.sink.write(stamp, setpoints)?;
         self.sink.flush()?;
@@ -85,13 +85,13 @@ impl<S: ThrusterSink> Failsafe<S> {
     }
 
     /// Setpoints arriving at `now_ns` with no freshness of their own stay valid for the deadline.
-    pub fn until_from(&self, now_ns: u64) -> u64 {
-        now_ns.saturating_add(self.deadline.as_nanos() as u64)
+    pub fn until_from(&self, now_ns: i64) -> i64 {
+        now_ns.saturating_add(self.deadline.as_nanos().min(i64::MAX as u128) as i64)
     }
 
     /// Time passed: stops the thrusters once the setpoints they hold are stale. Returns the stop
     /// made now, if any.
-    pub fn on_time(&mut self, now_ns: u64) -> Result<Option<StopCause>, AdapterError> {
+    pub fn on_time(&mut self, now_ns: i64) -> Result<Option<StopCause>, AdapterError> {
         match self.thrust {
             Thrust::Driven { until_ns } if now_ns >= until_ns => {
                 self.send_stop(StopCause::Deadline)?;
@@ -102,11 +102,11 @@ impl<S: ThrusterSink> Failsafe<S> {
     }
 
     /// How long until the setpoints held go stale (`None` while stopped).
-    pub fn time_left(&self, now_ns: u64) -> Option<Duration> {
+    pub fn time_left(&self, now_ns: i64) -> Option<Duration> {
         match self.thrust {
-            Thrust::Driven { until_ns } => {
-                Some(Duration::from_nanos(until_ns.saturating_sub(now_ns)))
-            }
+            Thrust::Driven { until_ns } => Some(Duration::from_nanos(
+                until_ns.saturating_sub(now_ns).max(0) as u64,
+            )),
             Thrust::Stopped(_) => None,
         }
     }
@@ -141,7 +141,7 @@ mod tests {
     use crate::record::NullSink;
     use messages::StepStatus;
 
-    const MS: u64 = 1_000_000;
+    const MS: i64 = 1_000_000;
 
     #[test]
     fn stale_setpoints_stop_the_thrusters_once() {

@@ -1,5 +1,5 @@
 //! The vehicle's hardware adapters: what the vehicle endpoint's camera reads and what its thruster
-//! allocator writes (DESIGN.md, "Endpoints"). Everything above them (perception, the behaviours, the
+//! driver writes (DESIGN.md, "Endpoints"). Everything above them (perception, the behaviours, the
 //! surge controller, the allocator's core) is the same code on the `sim` and `vehicle` endpoints.
 //!
 //! - [`FrameSource`]: the camera's frames, each with its image, size, time and the trial, step and

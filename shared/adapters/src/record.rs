@@ -25,7 +25,6 @@ use crate::{
 };
 use std::io::{BufRead, BufWriter, Write};
 use std::path::{Path, PathBuf};
-use std::time::{SystemTime, UNIX_EPOCH};
 
 /// The first line of a record file.
 pub const RECORD_MAGIC: &str = "# cabletrack thruster record v2";
@@ -114,9 +113,7 @@ impl RecordSink {
         stop: Option<StopCause>,
         values: &[f64],
     ) -> Result<(), AdapterError> {
-        let written = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos() as u64);
+        let written = runtime::clock::unix_ns();
         let mut line = format!(
             "{},{},{},{},{},{},{},{written},{}",
             stamp.seq,
@@ -267,6 +264,11 @@ pub fn read_record(path: &Path) -> Result<(Vec<String>, Vec<Record>), AdapterErr
                 .parse::<u64>()
                 .map_err(|e| bad(n, format!("{} `{}`: {e}", STAMP_COLUMNS[i], cols[i])))
         };
+        let signed = |i: usize| {
+            cols[i]
+                .parse::<i64>()
+                .map_err(|e| bad(n, format!("{} `{}`: {e}", STAMP_COLUMNS[i], cols[i])))
+        };
         let small = |i: usize| {
             u32::try_from(int(i)?).map_err(|e| bad(n, format!("{}: {e}", STAMP_COLUMNS[i])))
         };
@@ -288,7 +290,7 @@ pub fn read_record(path: &Path) -> Result<(Vec<String>, Vec<Record>), AdapterErr
         };
         let stamp = Stamp::new(int(0)?, int(2)?, small(4)?, small(5)?, status);
         records.push(Record {
-            stamp: stamp.timed(small(1)?, int(3)?),
+            stamp: stamp.timed(small(1)?, signed(3)?),
             written_unix_ns: int(7)?,
             stop,
             values,

@@ -3,7 +3,7 @@
 //!
 //! ```text
 //!  vehicle-twin ──TwinCameraPort──▶ cabletrack/twin/frame ──▶ TwinFrameSource (the camera service)
-//!  vehicle-twin ◀─TwinThrusterPort── cabletrack/twin/thrusters ◀── TwinThrusterSink (the allocator)
+//!  vehicle-twin ◀─TwinThrusterPort── cabletrack/twin/thrusters ◀── TwinThrusterSink (the thruster driver)
 //! ```
 //!
 //! A frame is a [`CameraFrameHeader`] (the twin's stamp: its frame counter as `seq`, its clock as

@@ -412,8 +412,14 @@ impl Companion {
         ));
     }
 
-    /// The scaling of the axes: the gain on each, and in MANUAL the yaw's ACRO_YAW_P / 4.5.
+    /// The scaling of the axes: under the scenario's `[pilot]` its fractions over the gain;
+    /// otherwise the gain on each, and in MANUAL the yaw's ACRO_YAW_P / 4.5.
     fn update_reach(&mut self) {
+        if let Some(fractions) = &self.options.fractions {
+            self.pilot
+                .set_reach(Reach::of_pilot(self.gain(), fractions));
+            return;
+        }
         let yaw_scale = match (self.options.mode, self.settings.and_then(|s| s.yaw_p)) {
             (crate::spec::Mode::Manual, Some(p)) if p > 0.0 => p / params::YAW_P_DEFAULT,
             _ => 1.0,

@@ -45,6 +45,20 @@ impl Reach {
     }
 }
 
+impl Reach {
+    /// Under the scenario's `[pilot]`: a full axis gives `gain / fraction` of the stack's command
+    /// on each DOF, so that a command is sent as `command x fraction x 1000 / gain`, the axis step
+    /// one's model assumes (`model::pilot`). In the stabilised modes the yaw axis is then a rate,
+    /// as the model's yaw is.
+    pub fn of_pilot(gain: f64, fractions: &config::PilotFractions) -> Self {
+        Reach {
+            surge: gain / fractions.surge,
+            sway: gain / fractions.sway,
+            yaw: gain / fractions.yaw,
+        }
+    }
+}
+
 /// A command beyond what a full axis gives: sent as the full axis.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Clipped {
@@ -211,6 +225,37 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn under_a_pilot_section_the_axes_are_those_step_ones_model_assumes() {
+        // The BlueROV2 scenario's fractions, at ArduSub's default gain and at others.
+        let pilot = config::PilotParams {
+            mode: config::PilotMode::AltHold,
+            fraction: config::PilotFractions {
+                surge: 0.0524,
+                sway: 0.0681,
+                yaw: 0.191,
+            },
+            yaw_rate_time_constant_s: Some(0.05),
+            autopilot: Default::default(),
+        };
+        for gain in [0.25, 0.5, 1.0] {
+            let reach = Reach::of_pilot(gain, &pilot.fraction);
+            for forces in [f(1.0, 0.0, 0.0), f(0.0, -1.0, 0.0), f(0.3, 0.77, -0.41)] {
+                let (ours, clipped) = axes(&forces, &reach);
+                let model = model::pilot::axes(&forces, &pilot, gain);
+                assert_eq!(
+                    (ours.x, ours.y, ours.r),
+                    (model.x, model.y, model.r),
+                    "gain {gain}, {forces:?}"
+                );
+                assert_eq!(clipped, None);
+            }
+        }
+        // A full yaw command at gain 0.5: 0.191 of the stick at gain 1 is 382 of 1000.
+        let (a, _) = axes(&f(0.0, 0.0, 1.0), &Reach::of_pilot(0.5, &pilot.fraction));
+        assert_eq!(a.r, 382);
     }
 
     #[test]

@@ -25,7 +25,7 @@ pub struct Publishers {
     depth: Outbox<AutopilotDepth>,
     servos: Outbox<ServoOutputs>,
     texts: Outbox<StatusText>,
-    clock: Box<dyn Fn() -> u64>,
+    clock: Box<dyn Fn() -> i64>,
     seq: u64,
 }
 
@@ -35,7 +35,7 @@ impl Publishers {
     pub fn open(
         node: &Node<ipc::Service>,
         endpoint: Endpoint,
-        clock: impl Fn() -> u64 + 'static,
+        clock: impl Fn() -> i64 + 'static,
     ) -> Result<Self, PortError> {
         Ok(Publishers {
             state: Outbox::open(node, endpoint, &topics::AUTOPILOT_STATE)?,
@@ -49,8 +49,8 @@ impl Publishers {
     }
 
     /// The vehicle clock when `at` was (an arrival a moment ago).
-    fn clock_at(&self, at: Instant) -> u64 {
-        (self.clock)().saturating_sub(at.elapsed().as_nanos() as u64)
+    fn clock_at(&self, at: Instant) -> i64 {
+        (self.clock)().saturating_sub(at.elapsed().as_nanos().min(i64::MAX as u128) as i64)
     }
 
     fn next(&mut self) -> u64 {

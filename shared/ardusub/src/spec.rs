@@ -104,6 +104,10 @@ pub struct Options {
     pub rate_hz: f64,
     pub mode: Mode,
     pub arm: Arming,
+    /// The scenario's `[pilot]` fractions, when the stack flies the vehicle as step one's model
+    /// says: a DOF's command of 1 is then that fraction of the full stick at joystick gain 1.
+    /// Without them a command of 1 is the axis's full thrust.
+    pub fractions: Option<config::PilotFractions>,
 }
 
 impl Default for Options {
@@ -114,6 +118,7 @@ impl Default for Options {
             rate_hz: 20.0,
             mode: Mode::Manual,
             arm: Arming::Auto,
+            fractions: None,
         }
     }
 }
@@ -129,6 +134,37 @@ impl Options {
 pub struct Spec {
     pub url: Url,
     pub options: Options,
+    /// Whether the spec named the mode (`mode=`), rather than taking the default.
+    pub mode_named: bool,
+}
+
+impl From<config::PilotMode> for Mode {
+    fn from(mode: config::PilotMode) -> Self {
+        match mode {
+            config::PilotMode::Manual => Mode::Manual,
+            config::PilotMode::Stabilize => Mode::Stabilize,
+            config::PilotMode::AltHold => Mode::AltHold,
+        }
+    }
+}
+
+impl Spec {
+    /// Flies as the scenario's `[pilot]` says: its mode (unless the spec named another: an error,
+    /// since step one learned on that mode's response) and its fractions.
+    pub fn with_pilot(mut self, pilot: &config::PilotParams) -> Result<Self, String> {
+        let wanted = Mode::from(pilot.mode);
+        if self.mode_named && self.options.mode != wanted {
+            return Err(format!(
+                "ArduSub sink `{}`: mode={} but the scenario's [pilot] flies in {} (step one learned that mode's response): drop `mode=` or set [pilot] mode",
+                self.url,
+                self.options.mode.name().to_lowercase(),
+                wanted.name().to_lowercase()
+            ));
+        }
+        self.options.mode = wanted;
+        self.options.fractions = Some(pilot.fraction);
+        Ok(self)
+    }
 }
 
 /// The fastest and slowest MANUAL_CONTROL rates accepted: ArduSub's pilot-input failsafe wants one
@@ -167,6 +203,7 @@ impl std::str::FromStr for Spec {
             }
         }
         let mut options = Options::default();
+        let mut mode_named = false;
         for pair in query.unwrap_or("").split('&').filter(|p| !p.is_empty()) {
             let (key, value) = pair
                 .split_once('=')
@@ -205,6 +242,7 @@ impl std::str::FromStr for Spec {
                     options.rate_hz = r;
                 }
                 "mode" => {
+                    mode_named = true;
                     options.mode = match value {
                         "manual" => Mode::Manual,
                         "stabilize" => Mode::Stabilize,
@@ -230,7 +268,11 @@ impl std::str::FromStr for Spec {
                 }
             }
         }
-        Ok(Spec { url, options })
+        Ok(Spec {
+            url,
+            options,
+            mode_named,
+        })
     }
 }
 
@@ -273,6 +315,29 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_pilot_section_sets_the_mode_and_fractions_and_a_contrary_mode_is_refused() {
+        let pilot = config::PilotParams {
+            mode: config::PilotMode::AltHold,
+            fraction: config::PilotFractions {
+                surge: 0.05,
+                sway: 0.07,
+                yaw: 0.2,
+            },
+            yaw_rate_time_constant_s: Some(0.05),
+            autopilot: Default::default(),
+        };
+        let s: Spec = "udpout:127.0.0.1:14550".parse().unwrap();
+        let s = s.with_pilot(&pilot).unwrap();
+        assert_eq!(s.options.mode, Mode::AltHold);
+        assert_eq!(s.options.fractions, Some(pilot.fraction));
+        let same: Spec = "udpout:127.0.0.1:14550?mode=alt_hold".parse().unwrap();
+        assert!(same.with_pilot(&pilot).is_ok());
+        let other: Spec = "udpout:127.0.0.1:14550?mode=manual".parse().unwrap();
+        let e = other.with_pilot(&pilot).unwrap_err();
+        assert!(e.contains("mode=manual") && e.contains("alt_hold"), "{e}");
+    }
+
+    #[test]
     fn specs_parse_with_their_defaults_and_options() {
         let s: Spec = "udpout:192.168.2.2:14550".parse().unwrap();
         assert_eq!(s.url, Url::UdpOut("192.168.2.2:14550".into()));
@@ -289,7 +354,8 @@ mod tests {
                 component: 194,
                 rate_hz: 25.0,
                 mode: Mode::AltHold,
-                arm: Arming::Manual
+                arm: Arming::Manual,
+                fractions: None,
             }
         );
         assert_eq!(

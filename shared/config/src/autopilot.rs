@@ -114,11 +114,19 @@ pub const ARDUSUB_PARAMS: &[ParamSpec] = &[
     // The pilot's yaw rate per stick in the stabilised modes (deg/s per 45 deg of stick: 4.5
     // gives 202.5 deg/s at full stick and full gain).
     p("ACRO_YAW_P", 4.5, 1.0, 10.0, Real32),
-    // The yaw dead zone of the joystick's yaw channel (us around 1500).
-    p("RC4_DZ", 30.0, 0.0, 200.0, Int16),
-    // The heading hold: heading error to yaw rate (1/s), yaw rate error to yaw output (per rad/s).
-    p("ATC_ANG_YAW_P", 4.5, 0.0, 12.0, Real32),
+    // The dead zone of the yaw channel (us around 1500; radio.cpp: 40 for the yaw channel), which
+    // the stabilised modes scale by the joystick gain (`mode_althold.cpp`).
+    p("RC4_DZ", 40.0, 0.0, 200.0, Int16),
+    // The yaw attitude loop (AC_AttitudeControl_Sub.h's defaults): heading error to yaw rate
+    // (1/s); the acceleration limit of the pilot's yaw rate (cdeg/s/s, 0: none); the rate
+    // controller's P and I (yaw output per rad/s, per rad), its integrator's limit and its
+    // target filter (Hz, 0: none).
+    p("ATC_ANG_YAW_P", 6.0, 0.0, 12.0, Real32),
+    p("ATC_ACCEL_Y_MAX", 110_000.0, 0.0, 180_000.0, Real32),
     p("ATC_RAT_YAW_P", 0.18, 0.0, 2.5, Real32),
+    p("ATC_RAT_YAW_I", 0.018, 0.0, 1.0, Real32),
+    p("ATC_RAT_YAW_IMAX", 0.222, 0.0, 1.0, Real32),
+    p("ATC_RAT_YAW_FLTT", 5.0, 0.0, 100.0, Real32),
 ];
 
 /// The stand-in autopilot's setup.
@@ -165,6 +173,31 @@ impl AutopilotParams {
     pub fn value(&self, name: &str) -> Option<f64> {
         let spec = self.specs().find(|s| s.name == name)?;
         Some(self.params.get(name).copied().unwrap_or(spec.default))
+    }
+}
+
+impl AutopilotParams {
+    /// The autopilot as the stack that pilots it through `pilot` assumes it: the parameters of
+    /// `[pilot.autopilot]` (the scenario's) set over these, as an operator sets them on the vehicle.
+    /// A parameter this file sets to another value is refused (`key` names this section).
+    pub fn flown_by(&self, pilot: &crate::PilotParams, key: &str) -> Result<Self, Invalid> {
+        let mut a = self.clone();
+        for (name, &value) in &pilot.autopilot {
+            match a.params.insert(name.clone(), value) {
+                Some(own) if own != value => {
+                    return Err(Invalid::new(
+                        join(&join(key, "params"), name),
+                        own,
+                        format!(
+                            "the scenario's [pilot.autopilot] assumes {value}: set it there only"
+                        ),
+                    ));
+                }
+                _ => {}
+            }
+        }
+        a.validate(key)?;
+        Ok(a)
     }
 }
 
@@ -269,6 +302,31 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("generation"), "{err}");
+    }
+
+    /// The scenario's [pilot.autopilot] is set over the twin's parameters; the twin setting one of
+    /// them to another value is refused, naming its key.
+    #[test]
+    fn the_pilots_parameters_are_set_over_the_twins() {
+        let pilot: crate::PilotParams = toml::from_str(
+            "mode = \"alt_hold\"\nfraction = { surge = 0.1, sway = 0.1, yaw = 0.1 }\n\
+             yaw_rate_time_constant_s = 0.05\n[autopilot]\nACRO_YAW_P = 1.0\nRC4_DZ = 0\n",
+        )
+        .unwrap();
+        let twin = parse("[autopilot.params]\nJS_GAIN_DEFAULT = 0.8\n").unwrap();
+        let flown = twin.flown_by(&pilot, "autopilot").unwrap();
+        assert_eq!(flown.value("ACRO_YAW_P"), Some(1.0));
+        assert_eq!(flown.value("RC4_DZ"), Some(0.0));
+        assert_eq!(flown.value("JS_GAIN_DEFAULT"), Some(0.8));
+        // The same value twice is no conflict.
+        let same = parse("[autopilot.params]\nACRO_YAW_P = 1.0\n").unwrap();
+        let flown = same.flown_by(&pilot, "autopilot").unwrap();
+        assert_eq!(flown.value("ACRO_YAW_P"), Some(1.0));
+        assert_eq!(flown.value("RC4_DZ"), Some(0.0));
+        let other = parse("[autopilot.params]\nRC4_DZ = 40\n").unwrap();
+        let err = other.flown_by(&pilot, "autopilot").unwrap_err();
+        assert_eq!(err.key, "autopilot.params.RC4_DZ");
+        assert!(err.reason.contains("[pilot.autopilot]"), "{err}");
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! The numbers every part of cabletrack agrees on.
 //!
 //! Two files describe an experiment: `config/scenario.toml` (the vehicle model, camera, cable, episode,
-//! rewards, thrusters: [`Scenario`]) and `config/learning.toml` (policy and learner parameters:
+//! rewards, thrusters, and how the stack pilots an autopilot: [`Scenario`]) and `config/learning.toml` (policy and learner parameters:
 //! [`LearningParams`]); the vehicle twin's reality gap is `config/twin.toml` ([`TwinParams`]). Every
 //! library takes its parameters from the types here, so a number is defined once. The defaults are
 //! the numbers of `DESIGN.md` and the paper; the files in `config/` repeat them so that an operator
@@ -13,6 +13,7 @@
 mod autopilot;
 mod error;
 mod learning;
+mod pilot;
 mod scenario;
 mod twin;
 mod vision;
@@ -25,6 +26,7 @@ pub use learning::{
     EvaluationParams, GpomdpParams, LearningParams, MAX_ANGLE_LAG, MAX_GUARD_DELAY, NacParams,
     PerDof, PolicyParams, Preset, RollbackParams, SafetyParams, StabilityParams, TrustRegionParams,
 };
+pub use pilot::{ACRO_YAW_P_DEFAULT, FULL_STICK_CDEG, PilotFractions, PilotMode, PilotParams};
 pub use scenario::{
     CableParams, CameraParams, DofModel, MAX_THRUSTERS, ModelParams, ObservationLimits, PoolParams,
     QuadraticCost, ResetParams, Rewards, Scenario, SurgeParams, ThrusterParams, Thrusters, Timing,

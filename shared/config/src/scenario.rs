@@ -19,9 +19,24 @@ pub struct Scenario {
     pub thrusters: Thrusters,
     pub render: RenderParams,
     pub perception: PerceptionParams,
+    /// How the stack flies the vehicle through its autopilot, if it does (`[pilot]`): then `model`
+    /// is the vehicle itself and the stack commands [`Scenario::commanded_model`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pilot: Option<crate::PilotParams>,
 }
 
 impl Scenario {
+    /// The model of what the stack's commands do: `model` itself, or with a `[pilot]` the
+    /// autopilot's response to the pilot's sticks on that vehicle ([`crate::PilotParams::commanded`]).
+    /// Step one's simulator, the LQR yardstick, the stability guard and the surge rule use it; the
+    /// vehicle twin's plant is `model`.
+    pub fn commanded_model(&self) -> ModelParams {
+        match &self.pilot {
+            Some(p) => p.commanded(&self.model),
+            None => self.model.clone(),
+        }
+    }
+
     /// The observation box of a learned DOF, `|x_i| <= state_max[i]`: |x_g| <= 0.5 and
     /// |Theta| <= pi/2 (the image's limits), the rates as clipped by [`ObservationLimits`]. Every agent
     /// of a DOF (the trainer's and the behaviour service's) takes its box, and so its failure reward,
@@ -47,7 +62,16 @@ impl Validate for Scenario {
         self.surge.validate(&join(key, "surge"))?;
         self.thrusters.validate(&join(key, "thrusters"))?;
         self.render.validate(&join(key, "render"))?;
-        self.perception.validate(&join(key, "perception"))
+        self.perception.validate(&join(key, "perception"))?;
+        if let Some(p) = &self.pilot {
+            p.validate(&join(key, "pilot"))?;
+            self.commanded_model()
+                .validate(&join(key, "pilot"))
+                .map_err(|i| {
+                    Invalid::new(i.key, i.value, format!("the commanded model: {}", i.reason))
+                })?;
+        }
+        Ok(())
     }
 }
 
@@ -121,7 +145,8 @@ impl Validate for DofModel {
     }
 }
 
-/// The 3-DOF model of DESIGN.md: surge u, sway v, yaw rate r.
+/// The 3-DOF model of DESIGN.md: surge u, sway v, yaw rate r. With a `[pilot]` it is the vehicle's
+/// own (what the twin's plant integrates); see [`Scenario::commanded_model`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ModelParams {

@@ -22,8 +22,12 @@ pub struct TwinParams {
     pub latency: LatencyParams,
     /// The twin camera's image: its own effects, harsher than the simulator's `[render]`.
     pub render: RenderParams,
-    /// The stand-in ArduSub autopilot (used with `vehicle-twin --autopilot URL`).
-    pub autopilot: crate::AutopilotParams,
+    /// The vehicle's autopilot, a stand-in ArduSub (`[autopilot]`): the thrusters are its motors,
+    /// whether the stack pilots it over MAVLink (`vehicle-twin --autopilot URL`) or through the
+    /// twin's thruster topic (the setpoints turned into its pilot's sticks, `scenario.toml
+    /// [pilot]`). Without it the thrusters take the setpoints themselves.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub autopilot: Option<crate::AutopilotParams>,
 }
 
 /// Trials, as on the real vehicle (paper section IV-B): a trial lasts `duration_s` of twin time or
@@ -223,7 +227,7 @@ impl Default for TwinParams {
             frames: FrameParams::default(),
             latency: LatencyParams::default(),
             render: TwinParams::default_render(),
-            autopilot: crate::AutopilotParams::default(),
+            autopilot: None,
         }
     }
 }
@@ -292,10 +296,10 @@ impl Default for DampingParams {
 impl Default for ThrusterGap {
     fn default() -> Self {
         ThrusterGap {
-            // Off by default: the default twin's thrust is the identified one (config/twin-harsh.toml
-            // turns it on).
+            // On by default: the default twin is more responsive than identified (the
+            // identification underestimated its thrust); config/twin-mild.toml turns it off.
             gain: GainParams {
-                enabled: false,
+                enabled: true,
                 factor: 2.5,
             },
             lag: LagParams {
@@ -361,10 +365,11 @@ impl Default for MountParams {
 
 impl Default for LatencyParams {
     fn default() -> Self {
-        // Off by default: the default twin answers each frame within its period.
+        // On by default: the default twin's commands reach the thrusters one period after the frame
+        // they answer (config/twin-mild.toml: off; config/twin-harsh.toml: two periods).
         LatencyParams {
-            enabled: false,
-            frames: 2,
+            enabled: true,
+            frames: 1,
         }
     }
 }
@@ -456,7 +461,10 @@ impl Validate for TwinParams {
         )?;
 
         self.render.validate(&join(key, "render"))?;
-        self.autopilot.validate(&join(key, "autopilot"))
+        match &self.autopilot {
+            Some(a) => a.validate(&join(key, "autopilot")),
+            None => Ok(()),
+        }
     }
 }
 
@@ -486,13 +494,28 @@ mod tests {
     }
 
     #[test]
-    fn the_harsh_twin_is_the_default_with_a_responsive_vehicle_lag_and_latency() {
+    fn the_default_twin_is_responsive_and_late_and_the_mild_one_is_neither() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        let d = TwinParams::default();
+        assert_eq!((d.thrusters.gain.factor(), d.latency.periods()), (2.5, 1));
+        let mild: TwinParams = crate::load(&dir.join("twin-mild.toml")).unwrap();
+        let mut want = TwinParams::default();
+        want.thrusters.gain.enabled = false;
+        want.latency.enabled = false;
+        assert_eq!(mild, want);
+        assert_eq!(
+            (mild.thrusters.gain.factor(), mild.latency.periods()),
+            (1.0, 0)
+        );
+    }
+
+    #[test]
+    fn the_harsh_twin_is_the_default_with_a_second_frame_of_latency_and_a_faster_lag() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/twin-harsh.toml");
         let t: TwinParams = crate::load(&path).unwrap();
         let mut want = TwinParams::default();
-        want.thrusters.gain.enabled = true;
         want.thrusters.lag.time_constant_s = 0.4;
-        want.latency.enabled = true;
+        want.latency.frames = 2;
         assert_eq!(t, want);
         assert_eq!((t.thrusters.gain.factor(), t.latency.periods()), (2.5, 2));
     }
@@ -590,10 +613,30 @@ mod tests {
         let s: crate::Scenario = crate::load(&dir.join("scenario.toml")).unwrap();
         let _: crate::LearningParams = crate::load(&dir.join("learning.toml")).unwrap();
         assert!(!t.damping.enabled);
-        assert_eq!(t.autopilot.value("MAV_GCS_SYSID"), Some(255.0));
-        assert_eq!(t.autopilot.value("FS_PILOT_TIMEOUT"), Some(3.0));
+        let autopilot = t
+            .autopilot
+            .as_ref()
+            .expect("the BlueROV2 flies under ArduSub");
+        assert_eq!(autopilot.value("MAV_GCS_SYSID"), Some(255.0));
+        assert_eq!(autopilot.value("FS_PILOT_TIMEOUT"), Some(3.0));
         assert_eq!(s.thrusters.thruster.len(), 4);
         assert!(s.model.yaw.beta > 0.0 && s.model.sway.beta > 0.0);
+        // The stack's full commands: 0.5 m/s of sway and surge, 0.15 rad/s of yaw, within the
+        // joystick gain's reach; the autopilot it assumes is the twin's.
+        let pilot = s
+            .pilot
+            .as_ref()
+            .expect("the BlueROV2 is flown through ArduSub");
+        let m = s.commanded_model();
+        assert!((m.sway.steady_velocity(1.0) - 0.5).abs() < 0.002);
+        assert!((m.surge.steady_velocity(1.0) - 0.5).abs() < 0.002);
+        assert!((m.yaw.steady_velocity(1.0) - 0.15).abs() < 0.001);
+        let flown = autopilot.flown_by(pilot, "autopilot").unwrap();
+        assert_eq!(flown.value("ACRO_YAW_P"), Some(1.0));
+        assert_eq!(flown.value("RC4_DZ"), Some(0.0));
+        let gain = flown.value("JS_GAIN_DEFAULT").unwrap();
+        let f = pilot.fraction;
+        assert!(f.surge.max(f.sway).max(f.yaw) <= gain);
     }
 
     #[test]

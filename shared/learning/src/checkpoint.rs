@@ -30,10 +30,9 @@ use crate::learner::Algorithm;
 use crate::safety::SafetyState;
 use config::{Dof, Invalid, LearningParams, QuadraticCost, Validate};
 use serde::{Deserialize, Serialize};
-use std::fs::{self, File, OpenOptions};
+use std::fs::File;
 use std::io::{self, Read, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The first bytes of every checkpoint file.
 pub const MAGIC: [u8; 8] = *b"CTRKCKPT";
@@ -631,70 +630,19 @@ mod v2 {
     }
 }
 
-/// Replaces `path` with `bytes`: temporary file, fsync, rename, fsync of the directory.
-/// On failure before the rename the temporary file is removed and the old file is untouched.
+/// Replaces `path` with `bytes` (`durable::replace`): temporary file, fsync, rename, fsync of the
+/// directory. On failure before the rename the temporary file is removed and the old file is
+/// untouched.
 fn write_atomically(
     path: &Path,
     bytes: &[u8],
     write: impl FnOnce(&mut File, &[u8]) -> io::Result<()>,
 ) -> Result<(), CheckpointError> {
-    let io_err = |action: &'static str| {
-        move |source| CheckpointError::Io {
-            path: path.to_owned(),
-            action,
-            source,
-        }
-    };
-    let name = path.file_name().ok_or_else(|| {
-        io_err("save")(io::Error::new(
-            io::ErrorKind::InvalidInput,
-            "the path has no file name",
-        ))
-    })?;
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    // Unique per process and call, so two savers never share a temporary file.
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}-{}",
-        name.to_string_lossy(),
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-    let staged = (|| {
-        let mut file = OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&tmp)
-            .map_err(io_err("create a temporary file for"))?;
-        write(&mut file, bytes).map_err(io_err("write"))?;
-        file.sync_all().map_err(io_err("sync"))?;
-        drop(file);
-        fs::rename(&tmp, path).map_err(io_err("rename the temporary file over"))
-    })();
-    if let Err(e) = staged {
-        if let Err(rm) = fs::remove_file(&tmp)
-            && rm.kind() != io::ErrorKind::NotFound
-        {
-            tracing::warn!(tmp = %tmp.display(), error = %rm, "cannot remove a temporary checkpoint file");
-        }
-        return Err(e);
-    }
-    // The rename is only durable once the directory entry is.
-    sync_dir(dir).map_err(io_err("sync the directory of"))
-}
-
-#[cfg(unix)]
-fn sync_dir(dir: &Path) -> io::Result<()> {
-    File::open(dir)?.sync_all()
-}
-
-#[cfg(not(unix))]
-fn sync_dir(_dir: &Path) -> io::Result<()> {
-    // Directories cannot be opened for syncing here; the rename itself is the best available.
-    Ok(())
+    durable::replace_with(path, |file| write(file, bytes)).map_err(|e| CheckpointError::Io {
+        path: e.path,
+        action: e.action,
+        source: e.source,
+    })
 }
 
 #[cfg(test)]
@@ -703,6 +651,7 @@ mod tests {
     use crate::agent::Agent;
     use config::Rewards;
     use config::StepStatus;
+    use std::fs;
 
     /// An agent that has learned something, so every field of its state is non-trivial.
     fn trained(dof: Dof, algorithm: Algorithm) -> AgentState {

@@ -16,7 +16,7 @@
 //! across episodes within the producer's epoch), its epoch, its episode and step, its time, the
 //! vehicle clock when it was taken (on the vehicle endpoint), and the episode status. A consumer
 //! matches inputs by epoch and `seq`, never mixes steps, and refuses stale or absurd stamps
-//! (`runtime::lockstep::Screen`).
+//! (`runtime::screen::Screen`).
 //!
 //! Setpoints are either a step's answer or a failsafe stop ([`ThrusterSetpoints::stop`],
 //! [`StopCause`]): the thruster driver's, which drives the thrusters to 0. Beside the loop, the

@@ -14,23 +14,24 @@ pub use config::StepStatus;
 
 /// The step a message belongs to. Copied unchanged from the step's first message (the simulator's
 /// vehicle state, the vehicle camera's frame) through every stage, so every consumer judges it alike
-/// (`runtime::lockstep::Screen`).
+/// (`runtime::screen::Screen`).
 #[derive(
     Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::Stamp/2")]
+#[type_name("cabletrack::Stamp/3")]
 pub struct Stamp {
     /// Sequence number of the control step, increasing within the producer's epoch.
     pub seq: u64,
     /// Time of the step (ns): simulated time on the sim endpoint; on the vehicle the frame source's
     /// clock (the twin matches the setpoints answering a frame by it).
     pub time_ns: u64,
-    /// The vehicle's monotonic clock (ns) when the step was taken (the camera read its frame); 0 on
-    /// the sim endpoint, whose lockstep runs on simulated time: an untimed stamp is never judged by
-    /// its age.
+    /// The vehicle clock (ns) when the step was taken (the camera read its frame): the monotonic
+    /// clock plus the producer's offset, signed, since a clock behind by more than the machine's
+    /// uptime reads below zero and must still show its pace. 0 on the sim endpoint, whose lockstep
+    /// runs on simulated time: an untimed stamp is never judged by its age.
     #[serde(default)]
-    pub clock_ns: u64,
+    pub clock_ns: i64,
     /// The session of the process that numbered `seq`, new at each start: a restarted producer's
     /// steps start a new epoch, which consumers accept instead of taking its `seq` for an old one.
     /// 0: no epoch.
@@ -64,7 +65,7 @@ impl Stamp {
     }
 
     /// The same step, taken at `clock_ns` on the vehicle clock in the producer's `epoch`.
-    pub fn timed(self, epoch: u32, clock_ns: u64) -> Self {
+    pub fn timed(self, epoch: u32, clock_ns: i64) -> Self {
         Stamp {
             epoch,
             clock_ns,
@@ -89,7 +90,7 @@ impl Stamp {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::VehicleState/2")]
+#[type_name("cabletrack::VehicleState/3")]
 pub struct VehicleStateMsg {
     pub stamp: Stamp,
     /// Position along the pool, m.
@@ -264,7 +265,7 @@ impl From<&CableObservationData> for model::CableObservation {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::CameraFrameHeader/3")]
+#[type_name("cabletrack::CameraFrameHeader/4")]
 pub struct CameraFrameHeader {
     pub stamp: Stamp,
     /// Pixels.
@@ -296,7 +297,7 @@ impl CameraFrameHeader {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::CableObservation/2")]
+#[type_name("cabletrack::CableObservation/3")]
 pub struct CableObservationMsg {
     pub stamp: Stamp,
     pub observation: CableObservationData,
@@ -313,7 +314,7 @@ impl CableObservationMsg {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::DofCommand/2")]
+#[type_name("cabletrack::DofCommand/3")]
 pub struct DofCommand {
     pub stamp: Stamp,
     /// In [-1, 1].
@@ -329,7 +330,7 @@ pub struct DofCommand {
 )]
 #[serde(into = "SetpointsForm", from = "SetpointsForm")]
 #[repr(C)]
-#[type_name("cabletrack::ThrusterSetpoints/2")]
+#[type_name("cabletrack::ThrusterSetpoints/3")]
 pub struct ThrusterSetpoints {
     pub stamp: Stamp,
     pub count: u32,
@@ -473,7 +474,7 @@ impl std::fmt::Display for StopCause {
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
 )]
 #[repr(C)]
-#[type_name("cabletrack::LearningStats/2")]
+#[type_name("cabletrack::LearningStats/3")]
 pub struct LearningStats {
     /// The stamp of the step that ended the episode.
     pub stamp: Stamp,
@@ -651,13 +652,13 @@ pub struct RecorderStatus {
 /// with the steps; the autopilot's own clock where the message has one.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::AutopilotState/1")]
+#[type_name("cabletrack::AutopilotState/2")]
 pub struct AutopilotState {
     /// Reports count from 1 in one driver's run.
     pub seq: u64,
     /// The vehicle clock (ns) when the autopilot's message arrived (or, for a lost heartbeat, when
     /// the loss was found).
-    pub clock_ns: u64,
+    pub clock_ns: i64,
     /// MAVLink frames refused so far on the link (broken checksums, garbage, truncated frames).
     pub frames_refused: u64,
     /// The battery as the autopilot reports it (SYS_STATUS): volts and amperes, NaN when unknown.
@@ -684,10 +685,10 @@ pub struct AutopilotState {
 /// [`AutopilotState`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::AutopilotAttitude/1")]
+#[type_name("cabletrack::AutopilotAttitude/2")]
 pub struct AutopilotAttitude {
     pub seq: u64,
-    pub clock_ns: u64,
+    pub clock_ns: i64,
     /// Radians, and radians per second.
     pub roll: f64,
     pub pitch: f64,
@@ -705,10 +706,10 @@ pub struct AutopilotAttitude {
 /// [`AutopilotState`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::AutopilotDepth/1")]
+#[type_name("cabletrack::AutopilotDepth/2")]
 pub struct AutopilotDepth {
     pub seq: u64,
-    pub clock_ns: u64,
+    pub clock_ns: i64,
     /// Metres below the surface (VFR_HUD `alt` negated).
     pub depth_m: f64,
     /// Degrees from north, 0 to 360.
@@ -726,10 +727,10 @@ pub const SERVO_CHANNELS: usize = 16;
 /// microseconds, 1500 at rest on a BlueROV2. Time as in [`AutopilotState`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::ServoOutputs/1")]
+#[type_name("cabletrack::ServoOutputs/2")]
 pub struct ServoOutputs {
     pub seq: u64,
-    pub clock_ns: u64,
+    pub clock_ns: i64,
     /// The autopilot's clock (microseconds since boot, wrapping).
     pub time_us: u32,
     /// The output port: channels 1 to 16 are port 0, 17 to 32 port 1.
@@ -748,10 +749,10 @@ pub const STATUS_TEXT_LEN: usize = 50;
 /// control", ...), as it comes. Time as in [`AutopilotState`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("cabletrack::StatusText/1")]
+#[type_name("cabletrack::StatusText/2")]
 pub struct StatusText {
     pub seq: u64,
-    pub clock_ns: u64,
+    pub clock_ns: i64,
     /// MAV_SEVERITY: 0 emergency ... 4 warning, 5 notice, 6 info, 7 debug.
     pub severity: u8,
     pub _reserved: [u8; 7],

@@ -161,7 +161,7 @@ pub fn command(dof: config::Dof) -> Topic<DofCommand> {
     }
 }
 
-/// Thruster setpoints: exactly one publisher (the allocator) may drive the thrusters; a second one
+/// Thruster setpoints: exactly one publisher (the allocator) may command the thrusters; a second one
 /// is refused while the first is alive (`ports`). A late subscriber still receives the last
 /// setpoints (history 1): the thruster driver judges their age and never acts on stale ones.
 pub const THRUSTER_SETPOINTS: Topic<ThrusterSetpoints> = Topic::new(
@@ -241,7 +241,9 @@ pub mod shore {
             history: 1,
             buffer: 4,
             recorder_buffer: 4,
-            // The operator, and the link's mirror on the vehicle.
+            // On the shore, the operator. On the vehicle, the link's mirror of the shore's
+            // publisher and the link's guard, which holds the other place so that no process of
+            // the vehicle can publish a command as if it came from the shore.
             max_publishers: 2,
             // The supervisor, the link, a test's probe.
             max_subscribers: 4,
@@ -345,7 +347,7 @@ const _: () = {
 /// The hardware level: topics between a device (or the vehicle twin standing in for the vehicle) and
 /// its adapters on the vehicle endpoint (`shared/adapters`). They live outside the `sim` and
 /// `vehicle` namespaces, in `cabletrack/<device>/<topic>`: the services of the vehicle endpoint never
-/// see them, only the camera's frame source and the allocator's thruster sink do.
+/// see them, only the camera's frame source and the thruster driver's thruster sink do.
 pub mod hardware {
     use super::{Qos, Topic};
     use crate::payload::ThrusterSetpoints;

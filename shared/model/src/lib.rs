@@ -7,6 +7,7 @@
 //!   (rho, Theta, x_g, y_g), whether it is in view, and its rates. This is the ground truth the
 //!   renderer and perception of `vision` are checked against, and the ideal perception of the trainer.
 //! - [`thrusters`]: the thruster layout, mapping setpoints to the model's normalised forces.
+//! - [`pilot`]: the stack's commands as an autopilot's pilot sticks (MANUAL_CONTROL's axes).
 //! - [`linear`]: the decoupled linear sway and yaw dynamics in observation coordinates (for LQR).
 //! - [`bounds`]: the one rule for bad values (non-finite is 0, out of range is clamped, both counted).
 //!
@@ -18,6 +19,7 @@ pub mod cable;
 pub mod camera;
 pub mod dynamics;
 pub mod linear;
+pub mod pilot;
 pub mod thrusters;
 
 pub use cable::Cable;

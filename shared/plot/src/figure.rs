@@ -6,10 +6,7 @@ use crate::line::{self, LineChart};
 use crate::picture::{self, Picture};
 use crate::style::{Theme, ensure_font};
 use plotters::prelude::*;
-use std::fs::{self, File, OpenOptions};
-use std::io::{self, Write};
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::path::Path;
 
 /// The largest figure [`Figure::save_png`] draws, in pixels (width × height).
 pub const MAX_PIXELS: u64 = 32_000_000;
@@ -89,8 +86,8 @@ impl Figure {
 
     /// Draws the figure and writes it to `path` as an 8-bit RGB PNG.
     ///
-    /// The image is written to a temporary file beside `path` and renamed over it, so `path` holds
-    /// either its old content or the whole new image, never a part. The directory must exist.
+    /// The image replaces `path` whole (`durable::replace`: a temporary file beside it, synced and
+    /// renamed over it), so `path` holds either its old content or the whole new image, never a part. The directory must exist.
     pub fn save_png(&self, path: &Path) -> Result<(), PlotError> {
         let (width, height) = self.pixel_size();
         if width == 0 || height == 0 || width.saturating_mul(height) > MAX_PIXELS {
@@ -112,9 +109,9 @@ impl Figure {
             path: path.to_path_buf(),
             message: e.to_string(),
         })?;
-        write_atomically(path, &png).map_err(|source| PlotError::Write {
+        durable::replace(path, &png).map_err(|e| PlotError::Write {
             path: path.to_path_buf(),
-            source,
+            source: e.source,
         })
     }
 
@@ -191,33 +188,6 @@ fn encode_png(rgb: &[u8], width: u32, height: u32) -> Result<Vec<u8>, png::Encod
     writer.write_image_data(rgb)?;
     writer.finish()?;
     Ok(bytes)
-}
-
-/// Writes `bytes` to a new temporary file in the directory of `path`, syncs it and renames it over
-/// `path`; the temporary file is removed if any step fails.
-fn write_atomically(path: &Path, bytes: &[u8]) -> io::Result<()> {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let name = path.file_name().ok_or_else(|| {
-        io::Error::new(io::ErrorKind::InvalidInput, "the path does not name a file")
-    })?;
-    let dir = match path.parent() {
-        Some(dir) if !dir.as_os_str().is_empty() => dir,
-        _ => Path::new("."),
-    };
-    let tmp: PathBuf = dir.join(format!(
-        ".{}.{}-{}.tmp",
-        name.to_string_lossy(),
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-    let mut file: File = OpenOptions::new().write(true).create_new(true).open(&tmp)?;
-    let written = file.write_all(bytes).and_then(|()| file.sync_all());
-    drop(file);
-    let written = written.and_then(|()| fs::rename(&tmp, path));
-    if written.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    written
 }
 
 #[cfg(test)]

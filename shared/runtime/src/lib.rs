@@ -1,9 +1,10 @@
-//! What every cabletrack process shares, written once: the common command line, tracing, the
-//! configuration, the iceoryx2 node (isolated by a prefix and root, with dead nodes' leftovers
-//! removed at start), clean shutdown on SIGINT/SIGTERM, the blocking wait loop, the lockstep
-//! protocol ([`lockstep`], [`Runtime::serve_steps`]) with its one judge of stamps
-//! ([`lockstep::Screen`]), the vehicle clock ([`clock`]), rate-limited warnings ([`Tally`],
-//! [`BadValues`]), and the processes a program starts ([`process`], [`Namespace`]).
+//! What every cabletrack process shares, written once: the common command line (and the one that
+//! runs a mesh, [`MeshArgs`]), tracing, the configuration, the iceoryx2 node (isolated by a prefix
+//! and root, with dead nodes' leftovers removed at start), clean shutdown on SIGINT/SIGTERM, the
+//! blocking wait loop, the lockstep protocol ([`lockstep`], [`Runtime::serve_steps`]), the one
+//! judge of stamps every consumer uses ([`screen::Screen`]), the clocks ([`clock`]), rate-limited
+//! warnings ([`Tally`], [`BadValues`]), and the processes a program starts ([`process`],
+//! [`Namespace`]).
 //!
 //! A service's `main` reads:
 //!
@@ -26,6 +27,7 @@ pub mod lockstep;
 mod namespace;
 mod node;
 pub mod process;
+pub mod screen;
 mod steps;
 mod tally;
 mod wait;
@@ -33,8 +35,8 @@ mod wait;
 pub use clock::VehicleClock;
 pub use namespace::Namespace;
 pub use node::{
-    CommonArgs, IoxSettings, RESTARTS_ENV, Runtime, RuntimeError, create_node, init_tracing,
-    remove_dead_nodes, restarts, run, shm_files, shm_leftovers,
+    CommonArgs, IoxSettings, MeshArgs, RESTARTS_ENV, RunArgs, Runtime, RuntimeError, create_node,
+    init_tracing, remove_dead_nodes, restarts, run, shm_files, shm_leftovers,
 };
 pub use steps::{Answer, StepInput};
 pub use tally::{BadValues, Tally, WARN_EVERY};

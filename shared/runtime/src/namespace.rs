@@ -1,6 +1,6 @@
-//! An iceoryx2 namespace of one run's own (a test's, a benchmark run's): a prefix and a root that
-//! no other run on this machine uses, so runs proceed in parallel without meeting, and everything
-//! they leave behind is removed with the namespace.
+//! An iceoryx2 namespace of one run's own (a test's, a benchmark run's, a supervisor's with
+//! `--own-namespace`): a prefix and a root that no other run on this machine uses, so runs proceed
+//! in parallel without meeting, and everything they leave behind is removed with the namespace.
 
 use crate::node::{IoxSettings, shm_files, shm_leftovers};
 use std::path::{Path, PathBuf};
@@ -45,10 +45,7 @@ impl Namespace {
 
     /// The environment a process needs to join (as `CommonArgs` reads it).
     pub fn env(&self) -> [(&'static str, String); 2] {
-        [
-            ("CABLETRACK_IOX_PREFIX", self.iox.prefix.clone()),
-            ("CABLETRACK_IOX_ROOT", self.iox.root.clone()),
-        ]
+        self.iox.env()
     }
 
     /// A directory of this namespace's own for logs, checkpoints and records (created on call).

@@ -18,6 +18,14 @@ pub struct CommonArgs {
     /// Which mesh to join: `sim` (the simulator drives) or `vehicle` (the camera's clock drives).
     #[arg(long, default_value = "sim")]
     pub endpoint: Endpoint,
+    #[command(flatten)]
+    pub run: RunArgs,
+}
+
+/// What every process of a run shares: the configuration, the experiment's seed and the iceoryx2
+/// namespace (the supervisor takes them and passes them on to its services, [`RunArgs::env`]).
+#[derive(clap::Args, Clone, Debug, PartialEq, Eq)]
+pub struct RunArgs {
     /// The configuration directory: scenario.toml, learning.toml (and the twin's twin.toml).
     #[arg(long, default_value = "config", env = "CABLETRACK_CONFIG")]
     pub config: PathBuf,
@@ -28,9 +36,22 @@ pub struct CommonArgs {
     pub iox: IoxSettings,
 }
 
+impl RunArgs {
+    /// The environment that gives a child process these (as [`CommonArgs`] reads it).
+    pub fn env(&self) -> [(&'static str, String); 4] {
+        let [prefix, root] = self.iox.env();
+        [
+            ("CABLETRACK_CONFIG", self.config.display().to_string()),
+            ("CABLETRACK_SEED", self.seed.to_string()),
+            prefix,
+            root,
+        ]
+    }
+}
+
 /// Where the iceoryx2 resources live. Processes with another prefix and root never meet: tests run
 /// isolated and in parallel.
-#[derive(clap::Args, Clone, Debug)]
+#[derive(clap::Args, Clone, Debug, PartialEq, Eq)]
 pub struct IoxSettings {
     /// Prefix of every shared-memory file and socket.
     #[arg(
@@ -48,10 +69,84 @@ pub struct IoxSettings {
     pub root: String,
 }
 
+/// The command line that runs a mesh: the `supervisor` parses it (flattened into its own options),
+/// and a program that starts a supervisor (a test, a benchmark) writes it with
+/// [`MeshArgs::command_line`], so the two never disagree.
+#[derive(clap::Args, Clone, Debug, PartialEq, Eq)]
+pub struct MeshArgs {
+    /// The mesh file (e.g. config/sim-mesh.toml).
+    #[arg(long)]
+    pub mesh: PathBuf,
+    /// A placeholder's value in the mesh file, KEY=VALUE (repeatable; `{seed}` is the seed's
+    /// unless set).
+    #[arg(long = "set", value_parser = parse_key_value)]
+    pub set: Vec<(String, String)>,
+    /// Passed on to every service.
+    #[command(flatten)]
+    pub run: RunArgs,
+}
+
+impl MeshArgs {
+    /// `mesh` with the experiment's `seed` and the configuration in `config`, in the iceoryx2
+    /// namespace `iox`; no placeholder set yet.
+    pub fn new(mesh: &Path, config: &Path, seed: u64, iox: &IoxSettings) -> MeshArgs {
+        MeshArgs {
+            mesh: mesh.to_owned(),
+            set: Vec::new(),
+            run: RunArgs {
+                config: config.to_owned(),
+                seed,
+                iox: iox.clone(),
+            },
+        }
+    }
+
+    /// With `--set KEY=VALUE` for each of `sets` too.
+    pub fn with_sets<'a>(mut self, sets: impl IntoIterator<Item = &'a (&'a str, String)>) -> Self {
+        self.set
+            .extend(sets.into_iter().map(|(k, v)| ((*k).to_owned(), v.clone())));
+        self
+    }
+
+    /// The arguments that parse back to these (the program's name not included).
+    pub fn command_line(&self) -> Vec<String> {
+        let mut args: Vec<String> = vec![
+            "--mesh".into(),
+            self.mesh.display().to_string(),
+            "--config".into(),
+            self.run.config.display().to_string(),
+            "--seed".into(),
+            self.run.seed.to_string(),
+            "--iox-prefix".into(),
+            self.run.iox.prefix.clone(),
+            "--iox-root".into(),
+            self.run.iox.root.clone(),
+        ];
+        for (k, v) in &self.set {
+            args.extend(["--set".into(), format!("{k}={v}")]);
+        }
+        args
+    }
+}
+
+fn parse_key_value(s: &str) -> Result<(String, String), String> {
+    s.split_once('=')
+        .map(|(k, v)| (k.to_owned(), v.to_owned()))
+        .ok_or_else(|| format!("`{s}` is not KEY=VALUE"))
+}
+
 /// An event socket is `<root><prefix><up to 39 digits>.event` and must fit in 108 bytes.
 const MAX_ROOT_AND_PREFIX: usize = 63;
 
 impl IoxSettings {
+    /// The environment a child process needs to join this namespace (as [`CommonArgs`] reads it).
+    pub fn env(&self) -> [(&'static str, String); 2] {
+        [
+            ("CABLETRACK_IOX_PREFIX", self.prefix.clone()),
+            ("CABLETRACK_IOX_ROOT", self.root.clone()),
+        ]
+    }
+
     /// The iceoryx2 configuration for these settings.
     pub fn config(&self) -> Result<IoxConfig, RuntimeError> {
         let root = if self.root.ends_with('/') {
@@ -154,9 +249,9 @@ impl Runtime {
     /// Loads the configuration, removes the resources of dead processes, creates the node and
     /// installs the termination-signal handler.
     pub fn start(name: &'static str, args: &CommonArgs) -> Result<Runtime, RuntimeError> {
-        let scenario: Scenario = config::load(&args.config.join("scenario.toml"))?;
-        let learning: LearningParams = config::load(&args.config.join("learning.toml"))?;
-        let iox = args.iox.config()?;
+        let scenario: Scenario = config::load(&args.run.config.join("scenario.toml"))?;
+        let learning: LearningParams = config::load(&args.run.config.join("learning.toml"))?;
+        let iox = args.run.iox.config()?;
         let clock = crate::VehicleClock::from_env()?;
         if clock.offset_ns() != 0 {
             tracing::warn!(
@@ -174,8 +269,8 @@ impl Runtime {
         Ok(Runtime {
             name,
             endpoint: args.endpoint,
-            seed: args.seed,
-            config_dir: args.config.clone(),
+            seed: args.run.seed,
+            config_dir: args.run.config.clone(),
             scenario,
             learning,
             iox,
@@ -191,10 +286,10 @@ impl Runtime {
     }
 
     /// The judge of the stamps arriving on `input` (a topic name), with the control loop's limits.
-    pub fn screen(&self, input: impl Into<String>) -> crate::lockstep::Screen {
-        crate::lockstep::Screen::new(
+    pub fn screen(&self, input: impl Into<String>) -> crate::screen::Screen {
+        crate::screen::Screen::new(
             input,
-            crate::lockstep::ScreenLimits::control(self.scenario.timing.sample_time_s),
+            crate::screen::ScreenLimits::control(self.scenario.timing.sample_time_s),
         )
     }
 
@@ -390,4 +485,41 @@ pub fn shm_leftovers(prefix: &str) -> Vec<String> {
         .into_iter()
         .filter(|n| !n.ends_with(".global_mgmt"))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Supervisor {
+        #[command(flatten)]
+        mesh: MeshArgs,
+    }
+
+    fn parse(args: &[String]) -> Result<MeshArgs, clap::Error> {
+        Supervisor::try_parse_from(std::iter::once("supervisor".to_owned()).chain(args.to_vec()))
+            .map(|s| s.mesh)
+    }
+
+    #[test]
+    fn a_mesh_command_line_parses_back_to_what_wrote_it() {
+        let iox = IoxSettings {
+            prefix: "nx1_".into(),
+            root: "/tmp/x y/".into(),
+        };
+        let args = MeshArgs::new(Path::new("config/sim-mesh.toml"), Path::new("/c"), 7, &iox)
+            .with_sets(&[
+                ("episodes", "3".to_owned()),
+                // An empty value, and one holding `=`: both kept as they are.
+                ("live", String::new()),
+                ("twin", "--twin-config=a.toml".to_owned()),
+            ]);
+        assert_eq!(parse(&args.command_line()).unwrap(), args);
+        let err = parse(&["--mesh".into(), "m.toml".into(), "--set".into(), "x".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("`x` is not KEY=VALUE"), "{err}");
+    }
 }

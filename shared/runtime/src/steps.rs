@@ -1,6 +1,6 @@
 //! Serving one input topic in lockstep: each step's message goes through the service's core once,
 //! a repeated step gets the answer already computed, an older, stale or absurd step is refused
-//! (`lockstep::Screen`). The loop every single-input service (camera, perception, the behaviours,
+//! (`screen::Screen`). The loop every single-input service (camera, perception, the behaviours,
 //! the surge controller) would otherwise write out itself.
 
 use crate::Runtime;
@@ -85,7 +85,7 @@ impl<'a, O> Answer<'a, O> {
 
 impl Runtime {
     /// Serves `input` until a termination signal (or `send` says stop): every message in order,
-    /// its stamp judged on the vehicle clock ([`crate::lockstep::Screen`]); a new step through
+    /// its stamp judged on the vehicle clock ([`crate::screen::Screen`]); a new step through
     /// `core`, whose output goes to `send` as [`Answer::New`]; the step answered last, again, as
     /// [`Answer::Again`]; an older, stale or absurd step refused (counted and logged). A step whose
     /// core fails ends the loop with the error, unless the core refuses it itself: `Ok(None)` (a
@@ -112,7 +112,7 @@ impl Runtime {
                                 once.commit(stamp, now, out.clone());
                                 Ok(Outcome::Fresh(out))
                             }
-                            Ok(None) => Ok(Outcome::Refused(crate::lockstep::Refusal::Unusable {
+                            Ok(None) => Ok(Outcome::Refused(crate::screen::Refusal::Unusable {
                                 seq: stamp.seq,
                             })),
                             Err(e) => Err(e),

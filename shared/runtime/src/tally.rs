@@ -7,13 +7,14 @@ use std::time::Duration;
 /// How often a repeated warning may be logged.
 pub const WARN_EVERY: Duration = Duration::from_secs(5);
 
-/// Counts occurrences and decides when one is to be logged. Plain state fed the time (ns).
+/// Counts occurrences and decides when one is to be logged. Plain state fed the time (ns, the
+/// vehicle clock: signed).
 #[derive(Clone, Debug)]
 pub struct Tally {
-    every_ns: u64,
+    every_ns: i64,
     total: u64,
     unreported: u64,
-    last_logged: Option<u64>,
+    last_logged: Option<i64>,
 }
 
 impl Default for Tally {
@@ -25,7 +26,7 @@ impl Default for Tally {
 impl Tally {
     pub fn new(every: Duration) -> Self {
         Tally {
-            every_ns: every.as_nanos() as u64,
+            every_ns: every.as_nanos().min(i64::MAX as u128) as i64,
             total: 0,
             unreported: 0,
             last_logged: None,
@@ -34,7 +35,7 @@ impl Tally {
 
     /// One more at `now_ns`: `Some(n)` when it is to be logged now, `n` being how many went
     /// unlogged before it.
-    pub fn count(&mut self, now_ns: u64) -> Option<u64> {
+    pub fn count(&mut self, now_ns: i64) -> Option<u64> {
         self.total += 1;
         if self.due(now_ns) {
             let earlier = self.unreported;
@@ -49,7 +50,7 @@ impl Tally {
 
     /// Occurrences not logged yet, once the interval since the last log has passed (then they count
     /// as reported).
-    pub fn flush(&mut self, now_ns: u64) -> Option<u64> {
+    pub fn flush(&mut self, now_ns: i64) -> Option<u64> {
         if self.unreported == 0 || !self.due(now_ns) {
             return None;
         }
@@ -57,7 +58,7 @@ impl Tally {
         Some(std::mem::take(&mut self.unreported))
     }
 
-    fn due(&self, now_ns: u64) -> bool {
+    fn due(&self, now_ns: i64) -> bool {
         self.last_logged
             .is_none_or(|t| now_ns.saturating_sub(t) >= self.every_ns)
     }
@@ -87,7 +88,7 @@ impl BadValues {
     }
 
     /// What the rule changed in the message of step `seq`, at `now_ns`.
-    pub fn note(&mut self, fixes: Fixes, seq: u64, now_ns: u64) {
+    pub fn note(&mut self, fixes: Fixes, seq: u64, now_ns: i64) {
         if fixes.is_empty() {
             return;
         }
@@ -118,7 +119,7 @@ mod tests {
 
     #[test]
     fn the_first_is_logged_then_at_most_once_per_interval() {
-        let s = 1_000_000_000;
+        let s: i64 = 1_000_000_000;
         let mut t = Tally::new(Duration::from_secs(5));
         assert_eq!(t.count(s), Some(0));
         assert_eq!(t.count(2 * s), None);

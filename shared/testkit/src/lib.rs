@@ -319,7 +319,9 @@ pub fn supervisor(ns: &Namespace, mesh: &Path, seed: u64, sets: &[(&str, String)
             sets.push((key, value.to_owned()));
         }
     }
-    let args = supervisor::command_line(mesh, None, seed, &ns.iox, &sets);
+    let args = runtime::MeshArgs::new(mesh, &config_dir(), seed, &ns.iox)
+        .with_sets(&sets)
+        .command_line();
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     Process::start(ns, &binary("supervisor"), &args)
 }

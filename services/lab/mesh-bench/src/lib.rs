@@ -26,15 +26,14 @@
 //! latency at the vehicle's 5 Hz over many steps, and every service's CPU and memory; `mesh-bench ring`
 //! runs the bare ring alone, by default in the vehicle's shape (the twin's frame, a thruster driver's
 //! hop) at the vehicle's 5 Hz: the vehicle's limit, what its processes and IPC cost a frame at cold
-//! caches before any perceiving; `mesh-bench drill` ([`drill`]) runs the fault drill of the vehicle's
-//! safety layer.
+//! caches before any perceiving. The fault drill of the vehicle's safety layer (`fault-drill`)
+//! starts and watches its meshes with this crate's [`runs`] and [`probe`].
 
-pub mod drill;
+pub mod cuts;
 pub mod probe;
 pub mod procfs;
 pub mod report;
 pub mod ring;
 pub mod runs;
-pub mod stats;
 pub mod timeline;
 pub mod vehicle;

@@ -66,14 +66,8 @@ struct VehicleArgs {
     /// Step one's episodes in simulation, before the vehicle run.
     #[arg(long, default_value_t = 100)]
     sim_episodes: u32,
-    /// Directory holding scenario.toml, learning.toml and twin.toml.
-    #[arg(long, default_value = "config")]
-    config: PathBuf,
-    /// The mesh files of step one and of the vehicle.
-    #[arg(long, default_value = "config/sim-mesh.toml")]
-    sim_mesh: PathBuf,
-    #[arg(long, default_value = "config/vehicle.toml")]
-    vehicle_mesh: PathBuf,
+    #[command(flatten)]
+    files: runs::VehicleFiles,
     /// Write the figures here as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -114,25 +108,34 @@ struct RecordArgs {
 }
 
 #[derive(Args)]
-struct DrillArgs {
-    /// Random SIGKILLs across the vehicle services.
+struct CutsArgs {
+    /// SIGKILLs of the processes that write files (the recorder, the behaviours, the monitor).
     #[arg(long, default_value_t = 100)]
-    kills: u32,
+    cuts: u32,
     /// Seed of the random choices and of the mesh.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Step one's episodes in simulation, before the vehicle run (the drill needs a policy, not a
-    /// good one).
+    /// The shortest and longest time between two cuts, in seconds.
+    #[arg(long, num_args = 2, default_values_t = [0.3, 1.5], value_name = "S")]
+    between: Vec<f64>,
+    /// Put the vehicle's files on a tmpfs of this many MiB of its own (a mount namespace of the
+    /// run's; needs root), which the flight record fills.
+    #[arg(long, value_name = "MIB")]
+    disk_mb: Option<u64>,
+    /// Step one's episodes in simulation, before the vehicle run.
     #[arg(long, default_value_t = 10)]
     sim_episodes: u32,
-    /// Directory holding scenario.toml, learning.toml and twin.toml.
-    #[arg(long, default_value = "config")]
-    config: PathBuf,
-    /// The mesh files of step one and of the vehicle.
-    #[arg(long, default_value = "config/sim-mesh.toml")]
-    sim_mesh: PathBuf,
-    #[arg(long, default_value = "config/vehicle.toml")]
-    vehicle_mesh: PathBuf,
+    #[command(flatten)]
+    files: runs::VehicleFiles,
+    /// The Python interpreter with the `mcap` package (scripts/install-mcap-py).
+    #[arg(long, default_value = "target/mcap-venv/bin/python")]
+    python: PathBuf,
+    /// The script that reads records with it.
+    #[arg(
+        long,
+        default_value = "services/mesh/recorder/tests/read_cut_records.py"
+    )]
+    reader: PathBuf,
     /// Write the figures here as JSON (and the vehicle mesh's log beside it, as .log).
     #[arg(long)]
     json: Option<PathBuf>,
@@ -173,9 +176,10 @@ enum Hidden {
     /// The flight recorder's cost: the mesh's steps/s with the recorder off and on (pairs of runs,
     /// swapping places every repeat), the recorder's CPU per step and the record's bytes per step.
     Record(RecordArgs),
-    /// The fault drill of the vehicle's safety layer: kills, stalls, a second allocator, a camera
-    /// with its clock stepped back and a rogue publisher, in one run of the vehicle mesh.
-    Drill(DrillArgs),
+    /// SIGKILLs at random moments of the processes that write files (the recorder, the behaviours,
+    /// the monitor), optionally on a small file system that fills; every file read afterwards by
+    /// readers that are not the project's.
+    Cuts(CutsArgs),
     /// The vehicle endpoint: camera-to-thruster latency at 5 Hz over many steps, CPU and memory of
     /// every service (step one runs first, in simulation, for the policy the vehicle starts from).
     Vehicle(VehicleArgs),
@@ -252,7 +256,7 @@ fn main() -> ExitCode {
         Some(Hidden::Latencies { files }) => latencies(&files),
         Some(Hidden::Record(a)) => logged(|| record(&a)),
         Some(Hidden::Vehicle(a)) => logged(|| vehicle(&a)),
-        Some(Hidden::Drill(a)) => logged(|| drill(&a)),
+        Some(Hidden::Cuts(a)) => logged(|| cuts(&a)),
         Some(Hidden::Ring(a)) => logged(|| bare_ring(&a)),
         None => logged(|| bench(&args)),
     };
@@ -272,23 +276,14 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
     if !(args.speed.is_finite() && args.speed > 0.0) {
         anyhow::bail!("--speed {} must be a number > 0", args.speed);
     }
-    let canon = |p: &PathBuf, what: &str| {
-        p.canonicalize()
-            .with_context(|| format!("{what} {}", p.display()))
-    };
-    let config_dir = canon(&args.config, "the config directory")?;
-    let scenario: config::Scenario = config::load(&config_dir.join("scenario.toml"))?;
-    let twin: config::TwinParams = config::load(&config_dir.join("twin.toml"))?;
+    let run = runs::VehicleRunSetup::new(&args.files, args.seed, args.sim_episodes)?;
+    let scenario = run.scenario()?;
+    let twin: config::TwinParams = config::load(&run.files.config.join("twin.toml"))?;
     let exe = std::env::current_exe()?;
     let setup = VehicleSetup {
-        bin_dir: exe.parent().context("the bench's directory")?.to_owned(),
-        sim_mesh: canon(&args.sim_mesh, "the mesh file")?,
-        vehicle_mesh: canon(&args.vehicle_mesh, "the mesh file")?,
-        config_dir,
+        run,
         steps: args.steps,
         speed: args.speed,
-        seed: args.seed,
-        sim_episodes: args.sim_episodes,
         steps_per_trial: (twin.trials.duration_s / scenario.timing.sample_time_s).round() as u32,
         drop_probability: twin.frames.dropped.rate(),
         period_s: scenario.timing.sample_time_s,
@@ -310,7 +305,7 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
         };
         let ring = runs::ring(
             &exe,
-            &setup.config_dir,
+            &setup.run.files.config,
             &options,
             false,
             None,
@@ -331,29 +326,34 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
     )
 }
 
-fn drill(args: &DrillArgs) -> Result<()> {
-    let canon = |p: &PathBuf, what: &str| {
-        p.canonicalize()
-            .with_context(|| format!("{what} {}", p.display()))
-    };
-    let config_dir = canon(&args.config, "the config directory")?;
-    let scenario: config::Scenario = config::load(&config_dir.join("scenario.toml"))?;
-    let exe = std::env::current_exe()?;
-    let setup = mesh_bench::drill::DrillSetup {
-        bin_dir: exe.parent().context("the bench's directory")?.to_owned(),
-        sim_mesh: canon(&args.sim_mesh, "the mesh file")?,
-        vehicle_mesh: canon(&args.vehicle_mesh, "the mesh file")?,
-        config_dir,
-        kills: args.kills,
-        seed: args.seed,
-        sim_episodes: args.sim_episodes,
-        period_s: scenario.timing.sample_time_s,
+fn cuts(args: &CutsArgs) -> Result<()> {
+    let setup = mesh_bench::cuts::CutsSetup {
+        run: runs::VehicleRunSetup::new(&args.files, args.seed, args.sim_episodes)?,
+        cuts: args.cuts,
+        between_s: (args.between[0], args.between[1].max(args.between[0])),
+        disk_mb: args.disk_mb,
+        // Not resolved: the virtual environment's interpreter is a link to the system's.
+        python: std::path::absolute(&args.python)?,
+        reader: args
+            .reader
+            .canonicalize()
+            .with_context(|| format!("the reader script {}", args.reader.display()))?,
         keep_log: args.json.as_ref().map(|j| j.with_extension("log")),
     };
-    let run = mesh_bench::drill::run(&setup)?;
-    let markdown = run.markdown();
+    if !setup.python.exists() {
+        anyhow::bail!(
+            "{} is missing: run scripts/install-mcap-py",
+            setup.python.display()
+        );
+    }
+    let run = mesh_bench::cuts::run(&setup)?;
     cli::outln!("{}", serde_json::to_string_pretty(&run)?)?;
-    report(&run, &markdown, args.json.as_deref(), None)
+    cli::outln!("{}", run.markdown())?;
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_string_pretty(&run)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
 }
 
 /// Prints several invocations' figures (their `--json` files) side by side.
@@ -401,17 +401,7 @@ fn report(
     json: Option<&std::path::Path>,
     md: Option<&std::path::Path>,
 ) -> Result<()> {
-    cli::outln!("{markdown}")?;
-    if let Some(path) = json {
-        std::fs::write(path, serde_json::to_string_pretty(figures)?)
-            .with_context(|| format!("writing {}", path.display()))?;
-        eprintln!("mesh-bench: wrote {}", path.display());
-    }
-    if let Some(path) = md {
-        std::fs::write(path, markdown).with_context(|| format!("writing {}", path.display()))?;
-        eprintln!("mesh-bench: wrote {}", path.display());
-    }
-    Ok(())
+    mesh_bench::report::publish("mesh-bench", figures, markdown, json, md)
 }
 
 fn bench(args: &Bench) -> Result<()> {
@@ -521,7 +511,17 @@ fn bench(args: &Bench) -> Result<()> {
         &markdown,
         args.json.as_deref(),
         args.markdown.as_deref(),
-    )
+    )?;
+    left_nothing_behind(results.leftovers())
+}
+
+/// Fails a benchmark whose runs left shared-memory files behind (each run has a namespace of its
+/// own and counts what is left of it before removing it).
+fn left_nothing_behind(leftovers: usize) -> Result<()> {
+    if leftovers > 0 {
+        anyhow::bail!("the runs left {leftovers} shared-memory files behind (see the report)");
+    }
+    Ok(())
 }
 
 /// The bare ring alone, `--repeats` runs: each run's step latency and hops.
@@ -683,5 +683,11 @@ fn record(args: &RecordArgs) -> Result<()> {
         bytes_per_step / 1e3,
         holes,
     );
-    report(&pairs, &markdown, args.json.as_deref(), None)
+    report(&pairs, &markdown, args.json.as_deref(), None)?;
+    left_nothing_behind(
+        pairs
+            .iter()
+            .map(|(off, on)| off.leftovers + on.leftovers)
+            .sum(),
+    )
 }

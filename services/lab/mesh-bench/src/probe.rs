@@ -6,7 +6,6 @@
 //! - [`Progress`]: a subscriber to the vehicle states without a listener: it is never woken, and
 //!   only tells, when asked, which step the mesh is at.
 
-use crate::stats::{Summary, now_ns};
 use crate::timeline::{Point, Timeline};
 use anyhow::{Context, Result, anyhow};
 use iceoryx2::port::subscriber::Subscriber;
@@ -17,6 +16,8 @@ use messages::{
     CableObservationMsg, DofCommand, Endpoint, FrameInbox, Inbox, Stamp, ThrusterSetpoints,
     VehicleStateMsg, topics,
 };
+use runtime::clock::monotonic_ns;
+use stats::Summary;
 use std::time::Duration;
 
 type Ipc = ipc::Service;
@@ -128,7 +129,7 @@ impl Probe {
         let cpu0 = crate::procfs::thread_cpu_ns();
         // Whatever arrived before the WaitSet existed.
         self.drain(&mut seen, &[true; 7])?;
-        let mut asked = now_ns();
+        let mut asked = monotonic_ns();
         loop {
             // Only the topics that were notified are looked at: a wake-up costs one `try_wait` and
             // one receive per message, not seven.
@@ -158,8 +159,8 @@ impl Probe {
                 let _ = l.try_wait(|_| {});
             }
             self.drain(&mut seen, &fired)?;
-            if now_ns().saturating_sub(asked) >= poll.as_nanos() as u64 {
-                asked = now_ns();
+            if monotonic_ns().saturating_sub(asked) >= poll.as_nanos() as u64 {
+                asked = monotonic_ns();
                 if done() {
                     break;
                 }
@@ -181,30 +182,32 @@ impl Probe {
         };
         if which[Point::State as usize] {
             while let Some(m) = self.state.receive()? {
-                note(Point::State, &m.stamp, now_ns());
+                note(Point::State, &m.stamp, monotonic_ns());
                 steps.push(m.stamp);
             }
         }
         if which[Point::Frame as usize] {
-            while let Some((stamp, t)) = self.frame.receive_with(|h, _| (h.stamp, now_ns()))? {
+            while let Some((stamp, t)) =
+                self.frame.receive_with(|h, _| (h.stamp, monotonic_ns()))?
+            {
                 note(Point::Frame, &stamp, t);
             }
         }
         if which[Point::Observation as usize] {
             while let Some(m) = self.observation.receive()? {
-                note(Point::Observation, &m.stamp, now_ns());
+                note(Point::Observation, &m.stamp, monotonic_ns());
             }
         }
         for (point, inbox) in &self.commands {
             if which[*point as usize] {
                 while let Some(m) = inbox.receive()? {
-                    note(*point, &m.stamp, now_ns());
+                    note(*point, &m.stamp, monotonic_ns());
                 }
             }
         }
         if which[Point::Setpoints as usize] {
             while let Some(m) = self.setpoints.receive()? {
-                note(Point::Setpoints, &m.stamp, now_ns());
+                note(Point::Setpoints, &m.stamp, monotonic_ns());
             }
         }
         for s in steps {

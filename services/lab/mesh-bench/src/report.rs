@@ -2,10 +2,34 @@
 
 use crate::ring::Shape;
 use crate::runs::{InProcessRun, MeshRun, ProcessUse, RingRun};
-use crate::stats::{Summary, median};
 use crate::timeline::{HOPS, SLOWEST, SlowStep};
+use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
+use stats::{Summary, median};
 use std::fmt::Write;
+use std::path::Path;
+
+/// Prints a report in Markdown and writes it and the figures (JSON) where asked; `who` is the
+/// program that says so.
+pub fn publish(
+    who: &str,
+    figures: &impl Serialize,
+    markdown: &str,
+    json: Option<&Path>,
+    md: Option<&Path>,
+) -> Result<()> {
+    cli::outln!("{markdown}")?;
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(figures)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("{who}: wrote {}", path.display());
+    }
+    if let Some(path) = md {
+        std::fs::write(path, markdown).with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("{who}: wrote {}", path.display());
+    }
+    Ok(())
+}
 
 /// The machine the bench ran on.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -506,8 +530,19 @@ impl Results {
             perception.in_process,
             perception.ratio(),
         );
-        let leftovers: usize = self
-            .mesh
+        let _ = writeln!(
+            out,
+            "\nShared-memory files left behind by all {} runs of processes: {}.",
+            self.mesh.len() + self.mesh_probe.len() + self.ring.len() + self.ring_probe.len(),
+            self.leftovers()
+        );
+        out
+    }
+
+    /// The shared-memory files all runs of processes left behind in their namespaces (a clean run:
+    /// none).
+    pub fn leftovers(&self) -> usize {
+        self.mesh
             .iter()
             .chain(&self.mesh_probe)
             .map(|r| r.leftovers)
@@ -517,13 +552,7 @@ impl Results {
                     .chain(&self.ring_probe)
                     .map(|r| r.leftovers),
             )
-            .sum();
-        let _ = writeln!(
-            out,
-            "\nShared-memory files left behind by all {} runs of processes: {leftovers}.",
-            self.mesh.len() + self.mesh_probe.len() + self.ring.len() + self.ring_probe.len()
-        );
-        out
+            .sum()
     }
 }
 

@@ -15,7 +15,6 @@
 //! a thruster driver node forwards the setpoints. Paced at the vehicle's period, it is the latency the
 //! vehicle's processes and IPC cost a frame before any perceiving: the vehicle's limit.
 
-use crate::stats::{Summary, now_ns};
 use anyhow::{Context, Result, bail};
 use messages::topics::hardware;
 use messages::{
@@ -23,9 +22,11 @@ use messages::{
     Stamp, StepStatus, ThrusterSetpoints, VehicleStateMsg, topics,
 };
 use records::latency::{HEADER, Sample, write_sample};
+use runtime::clock::monotonic_ns;
 use runtime::lockstep::Gather;
 use runtime::{Flow, Runtime, Stopped, Timer, Wake};
 use serde::{Deserialize, Serialize};
+use stats::Summary;
 use std::convert::Infallible;
 use std::time::Duration;
 
@@ -160,7 +161,7 @@ impl NodeReport {
 /// A stamp carrying the send time.
 fn restamp(stamp: Stamp) -> Stamp {
     Stamp {
-        time_ns: now_ns(),
+        time_ns: monotonic_ns(),
         ..stamp
     }
 }
@@ -174,7 +175,7 @@ pub fn run(rt: &Runtime, role: Role, options: &RingOptions) -> Result<NodeReport
     let mut hop = Vec::with_capacity(steps as usize * if role == Role::Allocator { 3 } else { 1 });
     let mut note = |seq: u64, sent_ns: u64| {
         if seq > warmup {
-            hop.push(now_ns().saturating_sub(sent_ns));
+            hop.push(monotonic_ns().saturating_sub(sent_ns));
         }
     };
     let mut report = NodeReport {
@@ -457,7 +458,7 @@ fn simulator(
         };
         let episode = ((seq - 1) / per_episode) as u32;
         VehicleStateMsg {
-            stamp: Stamp::new(seq, now_ns(), episode, step, status),
+            stamp: Stamp::new(seq, monotonic_ns(), episode, step, status),
             ..Default::default()
         }
     };
@@ -485,7 +486,7 @@ fn simulator(
             }
             answered = true;
             note(seq, sp.stamp.time_ns);
-            let t = now_ns();
+            let t = monotonic_ns();
             if seq > warmup {
                 run.samples.push(Sample {
                     seq,
@@ -522,7 +523,7 @@ fn simulator(
                             run.missed += 1;
                         }
                         if seq >= total {
-                            t_end = now_ns();
+                            t_end = monotonic_ns();
                             return Ok(Flow::Stop);
                         }
                         seq += 1;

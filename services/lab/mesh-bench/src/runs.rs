@@ -5,13 +5,14 @@
 use crate::probe::{self, Observed, Probe, Progress};
 use crate::procfs::{self, ProcSample, SchedCounts};
 use crate::ring::{self, NodeReport, RingOptions, Role, Shape};
-use crate::stats::{Summary, now_ns};
 use crate::timeline::HopLatencies;
 use anyhow::{Context, Result, bail};
 use messages::Endpoint;
 use runtime::Namespace;
+use runtime::clock::monotonic_ns;
 use runtime::process::{Child, Placement, Spawn};
 use serde::{Deserialize, Serialize};
+use stats::Summary;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -52,46 +53,123 @@ pub fn spawn(
         .with_context(|| format!("starting {}", program.display()))
 }
 
-/// Runs step one in simulation, briefly and with ideal perception, in `ns`: the policy a vehicle run
-/// starts from (a policy, not a good one). Returns the directory of its checkpoints.
-pub fn brief_step_one(
-    ns: &Namespace,
-    bin_dir: &Path,
-    sim_mesh: &Path,
-    config_dir: &Path,
-    seed: u64,
-    episodes: u32,
-    who: &str,
-) -> Result<PathBuf> {
-    let scratch = ns.scratch();
-    let step_one = scratch.join("step-one");
-    let args = supervisor::command_line(
-        sim_mesh,
-        Some(config_dir),
-        seed,
-        &ns.iox,
-        &[
-            ("episodes", episodes.to_string()),
-            ("eyes", "ideal".into()),
-            ("state", step_one.display().to_string()),
-            ("json", step_one.join("run.json").display().to_string()),
-        ],
-    );
-    eprintln!("{who}: step one, {episodes} episodes in simulation");
-    let mut sup = spawn(
-        "supervisor (step one)",
-        &bin_dir.join("supervisor"),
-        &args,
-        &[],
-        scratch.join("step-one.log"),
-    )?;
-    if !sup
-        .wait_timeout(Duration::from_secs(600))
-        .is_some_and(|s| s.success())
-    {
-        bail!("step one failed\n{}", sup.tail(30));
+/// Where a run of the vehicle mesh after a brief step one finds its configuration and its two mesh
+/// files: options of `mesh-bench vehicle` and of `fault-drill`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct VehicleFiles {
+    /// Directory holding scenario.toml, learning.toml and twin.toml.
+    #[arg(long, default_value = "config")]
+    pub config: PathBuf,
+    /// Step one's mesh file, in simulation.
+    #[arg(long, default_value = "config/sim-mesh.toml")]
+    pub sim_mesh: PathBuf,
+    /// The vehicle's mesh file.
+    #[arg(long, default_value = "config/vehicle.toml")]
+    pub vehicle_mesh: PathBuf,
+}
+
+impl VehicleFiles {
+    /// The three made absolute (the processes started run from elsewhere); a missing one is named.
+    pub fn canonical(&self) -> Result<VehicleFiles> {
+        let canon = |p: &Path, what: &str| {
+            p.canonicalize()
+                .with_context(|| format!("{what} {}", p.display()))
+        };
+        Ok(VehicleFiles {
+            config: canon(&self.config, "the config directory")?,
+            sim_mesh: canon(&self.sim_mesh, "the mesh file")?,
+            vehicle_mesh: canon(&self.vehicle_mesh, "the mesh file")?,
+        })
     }
-    Ok(step_one)
+}
+
+/// A run of the vehicle mesh after a brief step one (the vehicle bench's, the fault drill's): where
+/// its programs and files are, the experiment's seed and step one's length.
+#[derive(Clone, Debug)]
+pub struct VehicleRunSetup {
+    /// The programs' directory (the supervisor's and the services').
+    pub bin_dir: PathBuf,
+    /// Absolute ([`VehicleFiles::canonical`]).
+    pub files: VehicleFiles,
+    pub seed: u64,
+    /// Step one's episodes in simulation.
+    pub sim_episodes: u32,
+}
+
+impl VehicleRunSetup {
+    /// The run of `files` (made absolute), with the programs beside the running one.
+    pub fn new(files: &VehicleFiles, seed: u64, sim_episodes: u32) -> Result<Self> {
+        let exe = std::env::current_exe()?;
+        Ok(VehicleRunSetup {
+            bin_dir: exe.parent().context("the program's directory")?.to_owned(),
+            files: files.canonical()?,
+            seed,
+            sim_episodes,
+        })
+    }
+
+    /// The scenario of the run's configuration.
+    pub fn scenario(&self) -> Result<config::Scenario> {
+        Ok(config::load(&self.files.config.join("scenario.toml"))?)
+    }
+
+    /// Runs step one in simulation, briefly and with ideal perception, in `ns`: the policy a vehicle
+    /// run starts from (a policy, not a good one). Returns the directory of its checkpoints.
+    pub fn step_one(&self, ns: &Namespace, who: &str) -> Result<PathBuf> {
+        let scratch = ns.scratch();
+        let step_one = scratch.join("step-one");
+        let episodes = self.sim_episodes;
+        let args =
+            runtime::MeshArgs::new(&self.files.sim_mesh, &self.files.config, self.seed, &ns.iox)
+                .with_sets(&[
+                    ("episodes", episodes.to_string()),
+                    ("eyes", "ideal".into()),
+                    ("state", step_one.display().to_string()),
+                    ("json", step_one.join("run.json").display().to_string()),
+                ])
+                .command_line();
+        eprintln!("{who}: step one, {episodes} episodes in simulation");
+        let mut sup = spawn(
+            "supervisor (step one)",
+            &self.bin_dir.join("supervisor"),
+            &args,
+            &[],
+            scratch.join("step-one.log"),
+        )?;
+        if !sup
+            .wait_timeout(Duration::from_secs(600))
+            .is_some_and(|s| s.success())
+        {
+            bail!("step one failed\n{}", sup.tail(30));
+        }
+        Ok(step_one)
+    }
+
+    /// Starts the vehicle mesh in `ns` under its supervisor, with `sets` and `env`, its output in
+    /// `log`.
+    pub fn start_vehicle(
+        &self,
+        ns: &Namespace,
+        sets: &[(&str, String)],
+        env: &[(&str, String)],
+        log: PathBuf,
+    ) -> Result<Child> {
+        let args = runtime::MeshArgs::new(
+            &self.files.vehicle_mesh,
+            &self.files.config,
+            self.seed,
+            &ns.iox,
+        )
+        .with_sets(sets)
+        .command_line();
+        spawn(
+            "supervisor (vehicle)",
+            &self.bin_dir.join("supervisor"),
+            &args,
+            env,
+            log,
+        )
+    }
 }
 
 /// One reading while a run goes on: the step the loop is at and its processes.
@@ -238,7 +316,7 @@ fn watch(
         let seq = progress.latest_seq()?;
         let procs = pids().into_iter().filter_map(procfs::sample).collect();
         ticks.push(Tick {
-            t_ns: now_ns(),
+            t_ns: monotonic_ns(),
             seq,
             procs,
             busy_ns: procfs::machine_busy_ns(),
@@ -362,13 +440,9 @@ pub fn mesh(setup: &MeshSetup, with_probe: bool) -> Result<MeshRun> {
         ));
         sets.push(("frame_every", k.to_string()));
     }
-    let args = supervisor::command_line(
-        &setup.mesh_file,
-        Some(&setup.config_dir),
-        setup.seed,
-        &ns.iox,
-        &sets,
-    );
+    let args = runtime::MeshArgs::new(&setup.mesh_file, &setup.config_dir, setup.seed, &ns.iox)
+        .with_sets(&sets)
+        .command_line();
     let started = Instant::now();
     let mut sup = spawn(
         "supervisor",
@@ -478,10 +552,11 @@ pub fn ring(
     let ns = Namespace::new(if with_probe { "q" } else { "r" });
     let node = probe::node(&ns.iox, "mesh-bench")?;
     let watcher = Watcher::open(&node, with_probe)?;
+    let [prefix, root] = ns.env();
     let env = [
         ("CABLETRACK_CONFIG", config_dir.display().to_string()),
-        ("CABLETRACK_IOX_PREFIX", ns.iox.prefix.clone()),
-        ("CABLETRACK_IOX_ROOT", ns.iox.root.clone()),
+        prefix,
+        root,
         ("RUST_LOG", "warn".to_owned()),
     ];
     let mut nodes = Vec::new();

@@ -4,8 +4,8 @@
 //! move it). A hop's latency for step `seq` is the time its output of `seq` appeared minus the time its
 //! input of `seq` appeared: the stage's wake-up, its work and its publish, as seen from outside.
 
-use crate::stats::Summary;
 use serde::{Deserialize, Serialize};
+use stats::Summary;
 
 /// The mesh's topics in the order of the loop.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

@@ -9,11 +9,12 @@
 //! included. Meanwhile the bench reads each process in `/proc` every [`TICK`].
 
 use crate::procfs;
-use crate::runs::{ProcessUse, RingRun, Tick, brief_step_one, spawn, usage};
-use crate::stats::{Summary, now_ns};
+use crate::runs::{ProcessUse, RingRun, Tick, VehicleRunSetup, usage};
 use anyhow::{Context, Result, bail};
 use runtime::Namespace;
+use runtime::clock::monotonic_ns;
 use serde::{Deserialize, Serialize};
+use stats::Summary;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -26,17 +27,11 @@ const PROGRESS: Duration = Duration::from_secs(60);
 /// What to run.
 #[derive(Clone, Debug)]
 pub struct VehicleSetup {
-    pub bin_dir: PathBuf,
-    pub config_dir: PathBuf,
-    pub sim_mesh: PathBuf,
-    pub vehicle_mesh: PathBuf,
+    pub run: VehicleRunSetup,
     /// Frames to time, at least.
     pub steps: u64,
     /// Times real time (1: the vehicle's 5 Hz).
     pub speed: f64,
-    pub seed: u64,
-    /// Step one's episodes in simulation.
-    pub sim_episodes: u32,
     /// The twin's steps per trial and dropped-frame probability, and the control period (s).
     pub steps_per_trial: u32,
     pub drop_probability: f64,
@@ -120,45 +115,31 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     let ns = Namespace::new("v");
     let scratch = ns.scratch();
     // Step one: the policy the vehicle starts from.
-    let step_one = brief_step_one(
-        &ns,
-        &setup.bin_dir,
-        &setup.sim_mesh,
-        &setup.config_dir,
-        setup.seed,
-        setup.sim_episodes,
-        "mesh-bench: vehicle",
-    )?;
+    let step_one = setup.run.step_one(&ns, "mesh-bench: vehicle")?;
 
     // Step two on the twin, at the vehicle's pace.
     let trials = setup.trials();
     let latency_file = scratch.join("latency.csv");
-    let args = supervisor::command_line(
-        &setup.vehicle_mesh,
-        Some(&setup.config_dir),
-        setup.seed,
-        &ns.iox,
-        &[
-            ("trials", trials.to_string()),
-            ("pacing", format!("--speed={}", setup.speed)),
-            ("initial", step_one.display().to_string()),
-            ("state", scratch.join("step-two").display().to_string()),
-            (
-                "json",
-                scratch.join("step-two/run.json").display().to_string(),
-            ),
-            (
-                "trace",
-                scratch.join("step-two/trace.jsonl").display().to_string(),
-            ),
-            ("latency", format!("--latency={}", latency_file.display())),
-            // The flight record, as a vehicle keeps it (every frame), in the run's own directory.
-            (
-                "record",
-                scratch.join("record/flight.mcap").display().to_string(),
-            ),
-        ],
-    );
+    let sets = [
+        ("trials", trials.to_string()),
+        ("pacing", format!("--speed={}", setup.speed)),
+        ("initial", step_one.display().to_string()),
+        ("state", scratch.join("step-two").display().to_string()),
+        (
+            "json",
+            scratch.join("step-two/run.json").display().to_string(),
+        ),
+        (
+            "trace",
+            scratch.join("step-two/trace.jsonl").display().to_string(),
+        ),
+        ("latency", format!("--latency={}", latency_file.display())),
+        // The flight record, as a vehicle keeps it (every frame), in the run's own directory.
+        (
+            "record",
+            scratch.join("record/flight.mcap").display().to_string(),
+        ),
+    ];
     std::fs::create_dir_all(scratch.join("record"))?;
     let expected_s =
         trials as f64 * (setup.steps_per_trial + 1) as f64 * setup.period_s / setup.speed;
@@ -167,23 +148,19 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
         setup.speed, expected_s
     );
     let started = Instant::now();
-    let mut sup = spawn(
-        "supervisor (vehicle)",
-        &setup.bin_dir.join("supervisor"),
-        &args,
-        &[],
-        scratch.join("vehicle.log"),
-    )?;
+    let mut sup = setup
+        .run
+        .start_vehicle(&ns, &sets, &[], scratch.join("vehicle.log"))?;
     let sup_pid = sup.started_pid() as i32;
     let limit = Duration::from_secs_f64(expected_s * 1.5 + 120.0);
     let period_ns = setup.period_s / setup.speed * 1e9;
-    let t0 = now_ns();
+    let t0 = monotonic_ns();
     let mut ticks = Vec::new();
     let mut last_progress = Instant::now();
     while sup.try_status().is_none() {
         let mut pids = procfs::children(sup_pid);
         pids.push(sup_pid);
-        let t_ns = now_ns();
+        let t_ns = monotonic_ns();
         ticks.push(Tick {
             t_ns,
             // Control periods so far: the clock paces the loop, so CPU per period is CPU per step.
@@ -415,14 +392,18 @@ mod tests {
     #[test]
     fn trials_cover_the_steps_asked_with_dropped_frames() {
         let setup = VehicleSetup {
-            bin_dir: PathBuf::new(),
-            config_dir: PathBuf::new(),
-            sim_mesh: PathBuf::new(),
-            vehicle_mesh: PathBuf::new(),
+            run: VehicleRunSetup {
+                bin_dir: PathBuf::new(),
+                files: crate::runs::VehicleFiles {
+                    config: PathBuf::new(),
+                    sim_mesh: PathBuf::new(),
+                    vehicle_mesh: PathBuf::new(),
+                },
+                seed: 1,
+                sim_episodes: 100,
+            },
             steps: 10_000,
             speed: 1.0,
-            seed: 1,
-            sim_episodes: 100,
             steps_per_trial: 450,
             drop_probability: 0.03,
             period_s: 0.2,

@@ -25,9 +25,19 @@ pub fn parallel_map<T: Send>(
     progress: &Progress,
     f: impl Fn(usize) -> T + Sync,
 ) -> Vec<T> {
-    let workers = std::thread::available_parallelism()
-        .map_or(1, |p| p.get())
-        .min(n.max(1));
+    parallel_map_on(0, n, progress, f)
+}
+
+/// [`parallel_map`] on `threads` threads (0: one per core). Each item is computed alone, so the
+/// result does not depend on the threads.
+pub fn parallel_map_on<T: Send>(
+    threads: usize,
+    n: usize,
+    progress: &Progress,
+    f: impl Fn(usize) -> T + Sync,
+) -> Vec<T> {
+    let cores = std::thread::available_parallelism().map_or(1, |p| p.get());
+    let workers = if threads == 0 { cores } else { threads }.min(n.max(1));
     let next = AtomicUsize::new(0);
     let slots: Mutex<Vec<Option<T>>> = Mutex::new((0..n).map(|_| None).collect());
     std::thread::scope(|scope| {

@@ -28,6 +28,18 @@ pub enum Perceiver {
 }
 
 impl Perceiver {
+    /// The perception stage of a run with this seed seeing through `eyes` (the renderer's noise is
+    /// the seed's `render` stream, as the mesh's camera draws it).
+    pub fn for_run(scenario: &Scenario, eyes: Eyes, seed: u64) -> Result<Perceiver, VisionError> {
+        Ok(match eyes {
+            Eyes::Ideal => Perceiver::Ideal(scenario.observation.clone()),
+            Eyes::Images => Perceiver::Images(Box::new(SimulatedVision::new(
+                scenario,
+                config::derive_seed(seed, "render"),
+            )?)),
+        })
+    }
+
     /// Forgets what was tracked (a new episode starts elsewhere).
     pub fn reset(&mut self) {
         if let Perceiver::Images(vision) = self {
@@ -76,13 +88,8 @@ impl Setup {
 
     /// The perception stage for a run with this seed (the renderer's noise is its own stream).
     pub fn perceiver(&self, seed: u64) -> Perceiver {
-        match self.eyes {
-            Eyes::Ideal => Perceiver::Ideal(self.scenario.observation.clone()),
-            Eyes::Images => Perceiver::Images(Box::new(
-                SimulatedVision::new(&self.scenario, config::derive_seed(seed, "render"))
-                    .expect("the vision configuration was checked by Setup::with_eyes"),
-            )),
-        }
+        Perceiver::for_run(&self.scenario, self.eyes, seed)
+            .expect("the vision configuration was checked by Setup::with_eyes")
     }
 
     /// Sets the learning rate of `algorithm`.

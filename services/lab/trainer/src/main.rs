@@ -14,7 +14,7 @@ use trainer::evaluation::{evaluate, load_policies, policy_checkpoint, save_polic
 use trainer::experiment::{self, Curve};
 use trainer::figures::{Alphas, Fig5, PolicyMap, write_json};
 use trainer::progress::Progress;
-use trainer::step_two_bench::{BenchParams, evaluation_json};
+use trainer::step_two_bench::{BenchFile, BenchParams, Shard, Timing, evaluation_json};
 use trainer::twin_limit::SearchParams;
 use trainer::world::{EpisodeResult, World};
 
@@ -145,8 +145,13 @@ enum Command {
     /// The twin's limit: the best linear policy of each DOF on a twin, by direct policy search on the
     /// twin in one process (the cross-entropy method from the LQR gains, common random numbers),
     /// written as a policy directory (DIR/sway.ckpt, DIR/yaw.ckpt: `--initial` loads them) and
-    /// DIR/limit.json (gains, returns, the evaluation set). Use `--eyes images` for the vehicle's
-    /// perception.
+    /// DIR/limit.json (gains, returns, the evaluation set, the check). Search with the eyes the
+    /// evaluations use (`--eyes images` for the vehicle's perception): a limit found with other eyes
+    /// is no limit for them. Policies given as candidates (`--candidate`, `--session`; from the LQR
+    /// gains, the LQR gains halved and quartered too) join the search's first generation and are
+    /// checked against the limit on the evaluation set: where one evaluates above it by more than
+    /// twice the evaluation's noise, the search goes on from it (up to `--rounds` rounds), and
+    /// limit.json says which still beats it.
     TwinLimit {
         /// The twin's reality gap.
         #[arg(long, default_value = "config/twin.toml")]
@@ -171,17 +176,38 @@ enum Command {
         /// Start from this policy directory's gains instead of the LQR gains.
         #[arg(long, value_name = "DIR")]
         start: Option<PathBuf>,
+        /// A policy directory the limit must not be below, named (repeatable; the main job: the
+        /// simulation policy first, step two's last).
+        #[arg(long, value_name = "NAME=DIR")]
+        candidate: Vec<String>,
+        /// Step two's run record (the monitor's run.json): every policy its evaluations judged is a
+        /// candidate too.
+        #[arg(long, value_name = "RUN.json")]
+        session: Option<PathBuf>,
+        /// Held-out evaluation sets (other starts, floors and noise): the limit and every
+        /// `--candidate` are evaluated on them too, with the cables they lose; the spread over them
+        /// of the last candidate's return minus the first's is the evaluation's noise the check
+        /// allows (none under 2 sets or 2 candidates: any margin beats the limit).
+        #[arg(long, default_value_t = 0)]
+        held_out: u32,
+        /// Rounds of the search at most.
+        #[arg(long, default_value_t = 3)]
+        rounds: usize,
     },
     /// Step two over many seeds in one process: step one in simulation, then a learning session on
     /// the twin (the vehicle mesh's algorithm), measured by the evaluation protocol against the
-    /// simulation policy and the twin's limit. Prints a table; writes JSON.
+    /// simulation policy and the twin's limit. Seeds run in parallel (a thread each, as many at once
+    /// as cores), and the rows do not depend on it. Prints a table; writes JSON. `--shard K/N` runs
+    /// every N-th seed from the K-th and writes its JSON; `step-two-merge` puts the N files together
+    /// into the file and table of the whole run.
     StepTwoBench {
         /// Seeds: a list (1,2,5) or a range (1..12).
         #[arg(long, default_value = "1..12")]
         seeds: String,
         #[arg(long, default_value = "config/twin.toml")]
         twin: PathBuf,
-        /// The twin's limit (a `twin-limit` directory); without it, it is searched first.
+        /// The twin's limit (a `twin-limit` directory); without it, it is searched first (the same
+        /// search in every shard: search it once with `trainer twin-limit` and pass it to all).
         #[arg(long, value_name = "DIR")]
         limit: Option<PathBuf>,
         /// Learning trials of step two (a multiple of learning.toml's evaluation.learning_trials).
@@ -189,13 +215,44 @@ enum Command {
         trials: u32,
         #[arg(long, default_value_t = 100)]
         sim_episodes: usize,
-        /// Independent evaluation sets on which the simulation policy and the final one are
-        /// evaluated again (the evaluation's noise).
+        /// How step one sees the cable in simulation [default: --eyes] (the main job's step one
+        /// sees images).
+        #[arg(long, value_name = "ideal|images")]
+        sim_eyes: Option<config::Eyes>,
+        /// Independent evaluation sets on which the simulation policy, the final one and the limit
+        /// are evaluated again (the evaluation's noise, and the cables lost on other starts).
         #[arg(long, default_value_t = 4)]
         held_out: u32,
         /// Evaluate the policy after every learning trial (the trials to close half the gap).
         #[arg(long)]
         every_trial: bool,
+        /// Run only this shard of the seeds: K/N, every N-th seed from the K-th.
+        #[arg(long, value_name = "K/N")]
+        shard: Option<trainer::step_two_bench::Shard>,
+        /// Threads (0: one per core).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+        /// The limit's search: candidates per generation, generations at most, trials of its
+        /// search set, rounds of a seed's search at most, and the seed of the bench's search.
+        #[arg(long, default_value_t = 12)]
+        limit_population: usize,
+        #[arg(long, default_value_t = 16)]
+        limit_generations: usize,
+        #[arg(long, default_value_t = 10)]
+        limit_trials: u32,
+        #[arg(long, default_value_t = 3)]
+        limit_rounds: usize,
+        #[arg(long, default_value_t = 1)]
+        limit_seed: u64,
+        #[arg(long, default_value = "out/step-two-bench.json")]
+        json: PathBuf,
+    },
+    /// Merges the JSON files of a step-two benchmark's shards (`step-two-bench --shard K/N`, every
+    /// K from 1 to N) into the JSON and table the unsplit run gives.
+    StepTwoMerge {
+        /// The shards' files.
+        #[arg(required = true)]
+        shards: Vec<PathBuf>,
         #[arg(long, default_value = "out/step-two-bench.json")]
         json: PathBuf,
     },
@@ -336,6 +393,10 @@ fn run(cli: Cli) -> Result<()> {
             generations,
             search_trials,
             start,
+            candidate,
+            session,
+            held_out,
+            rounds,
         } => {
             let search = SearchParams {
                 population,
@@ -345,7 +406,23 @@ fn run(cli: Cli) -> Result<()> {
                 tolerance: SearchParams::default().tolerance,
                 eyes: setup.eyes,
             };
-            twin_limit(&setup, &twin, &out, seed, &search, start.as_deref()).map(|_| ())
+            let candidates = candidate
+                .iter()
+                .map(|c| {
+                    c.split_once('=')
+                        .filter(|(name, dir)| !name.is_empty() && !dir.is_empty())
+                        .map(|(name, dir)| (name.to_owned(), PathBuf::from(dir)))
+                        .with_context(|| format!("--candidate {c}: not NAME=DIR"))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            let given = LimitInputs {
+                start: start.as_deref(),
+                candidates: &candidates,
+                session: session.as_deref(),
+                held_out,
+                rounds,
+            };
+            twin_limit(&setup, &twin, &out, seed, &search, &given).map(|_| ())
         }
         Command::Plan { trials, twin } => {
             let (session, e) = plan(&setup, trials, twin.as_deref())?;
@@ -358,8 +435,16 @@ fn run(cli: Cli) -> Result<()> {
             limit,
             trials,
             sim_episodes,
+            sim_eyes,
             held_out,
             every_trial,
+            shard,
+            threads,
+            limit_population,
+            limit_generations,
+            limit_trials,
+            limit_rounds,
+            limit_seed,
             json,
         } => {
             let params = BenchParams {
@@ -367,11 +452,31 @@ fn run(cli: Cli) -> Result<()> {
                 trials,
                 sim_episodes,
                 eyes: setup.eyes,
+                sim_eyes: sim_eyes.unwrap_or(setup.eyes),
                 held_out,
                 every_trial,
+                limit_search: SearchParams {
+                    population: limit_population,
+                    generations: limit_generations,
+                    trials: limit_trials,
+                    seed: config::derive_seed(limit_seed, "twin-limit/search"),
+                    tolerance: SearchParams::default().tolerance,
+                    eyes: setup.eyes,
+                },
+                limit_rounds,
+                limit_seed,
             };
-            step_two_bench(&setup, &twin, limit.as_deref(), &params, &json)
+            step_two_bench(
+                &setup,
+                &twin,
+                limit.as_deref(),
+                &params,
+                shard,
+                threads,
+                &json,
+            )
         }
+        Command::StepTwoMerge { shards, json } => step_two_merge(&shards, &json),
         Command::Limit {
             episodes,
             seed,
@@ -724,6 +829,13 @@ fn parse_seeds(text: &str) -> Result<Vec<u64>> {
     if seeds.is_empty() {
         bail!("--seeds: `{text}` names no seed");
     }
+    if let Some((i, s)) = seeds
+        .iter()
+        .enumerate()
+        .find(|(i, s)| seeds[..*i].contains(s))
+    {
+        bail!("--seeds: `{text}` names seed {s} twice (at {i})");
+    }
     Ok(seeds)
 }
 
@@ -742,6 +854,113 @@ fn evaluation_trials(setup: &Setup) -> Result<u32> {
     Ok(e)
 }
 
+/// What `trainer twin-limit` checks its limit against, besides the search.
+struct LimitInputs<'a> {
+    /// Start from this policy directory instead of the LQR gains.
+    start: Option<&'a std::path::Path>,
+    /// Named policy directories.
+    candidates: &'a [(String, PathBuf)],
+    /// Step two's run record, whose evaluated policies are candidates too.
+    session: Option<&'a std::path::Path>,
+    held_out: u32,
+    rounds: usize,
+}
+
+/// A policy evaluated on the held-out sets: each set's evaluated return, and the cables lost.
+#[derive(serde::Serialize)]
+struct HeldOut {
+    name: String,
+    /// The sets' evaluated returns, in the order of the sets.
+    returns: PerDof<Vec<f64>>,
+    mean: PerDof<f64>,
+    lost: u32,
+    trials: u32,
+}
+
+fn held_out(
+    setup: &Setup,
+    twin: &config::TwinParams,
+    eyes: config::Eyes,
+    name: &str,
+    policy: &Checkpoint,
+    sets: &[u64],
+    e: u32,
+) -> Result<HeldOut> {
+    let evals = trainer::experiment::parallel_map(sets.len(), &Progress::hidden(), |i| {
+        evaluate(&setup.scenario, twin, eyes, policy, sets[i], e)
+    })
+    .into_iter()
+    .collect::<Result<Vec<_>, _>>()?;
+    let returns = PerDof {
+        sway: evals.iter().map(|v| v.mean().sway).collect::<Vec<_>>(),
+        yaw: evals.iter().map(|v| v.mean().yaw).collect::<Vec<_>>(),
+    };
+    Ok(HeldOut {
+        name: name.to_owned(),
+        mean: PerDof {
+            sway: stats::mean(returns.sway.iter().copied()),
+            yaw: stats::mean(returns.yaw.iter().copied()),
+        },
+        returns,
+        lost: evals.iter().map(|v| v.lost).sum(),
+        trials: evals.iter().map(|v| v.trials).sum(),
+    })
+}
+
+/// The held-out evaluation sets of the evaluation set `seed` (the benchmark's).
+fn held_out_sets(seed: u64, n: u32) -> Vec<u64> {
+    (0..n)
+        .map(|h| config::derive_seed(seed, &format!("held-out/{h}")))
+        .collect()
+}
+
+/// The policies a step-two session's evaluations judged after learning (the run record's gains
+/// after the trial before each evaluation began), named by the learning trials before them.
+fn session_policies(path: &std::path::Path) -> Result<Vec<(String, PerDof<[f64; 2]>)>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let run: records::RunRecord =
+        serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+    let index = |trial: u32| -> Option<usize> {
+        if run.episode_numbers.is_empty() {
+            Some(trial as usize)
+        } else {
+            run.episode_numbers.iter().position(|&n| n == trial)
+        }
+    };
+    let mut policies = Vec::new();
+    for ev in run.evaluations.iter().filter(|e| e.learning_trials > 0) {
+        let mut begin = ev.trial;
+        while begin > 0
+            && index(begin - 1).is_some_and(|i| run.evaluation.get(i).copied().unwrap_or(false))
+        {
+            begin -= 1;
+        }
+        let before = begin
+            .checked_sub(1)
+            .and_then(index)
+            .filter(|&i| i < run.yaw_gain.len() && i < run.sway_gain.len())
+            .with_context(|| {
+                format!(
+                    "{}: no gains recorded before the evaluation ending at trial {}",
+                    path.display(),
+                    ev.trial
+                )
+            })?;
+        policies.push((
+            format!(
+                "step two's evaluation after {} learning trials",
+                ev.learning_trials
+            ),
+            PerDof {
+                sway: run.sway_gain[before],
+                yaw: run.yaw_gain[before],
+            },
+        ));
+    }
+    Ok(policies)
+}
+
 /// `trainer twin-limit`; returns the limit's policies.
 fn twin_limit(
     setup: &Setup,
@@ -749,39 +968,124 @@ fn twin_limit(
     out: &std::path::Path,
     seed: u64,
     search: &SearchParams,
-    start: Option<&std::path::Path>,
+    given: &LimitInputs,
 ) -> Result<Checkpoint> {
+    use trainer::step_two_bench::gains;
+    use trainer::twin_limit::{Candidate, Check};
     let twin = load_twin(twin_path)?;
     let e = evaluation_trials(setup)?;
     let (scenario, learning) = (&setup.scenario, &setup.learning);
     let lqr = experiment::lqr_gains(setup)?;
-    let start_gains = match start {
-        Some(dir) => {
-            let c = load_policies(dir)?;
-            PerDof {
-                sway: c.get(Dof::Sway).expect("loaded").policy.gain,
-                yaw: c.get(Dof::Yaw).expect("loaded").policy.gain,
-            }
-        }
+    let start_gains = match given.start {
+        Some(dir) => gains(&load_policies(dir)?),
         None => lqr,
     };
+    let mut named: Vec<(String, PerDof<[f64; 2]>)> = Vec::new();
+    for (name, dir) in given.candidates {
+        let c =
+            load_policies(dir).with_context(|| format!("--candidate {name}={}", dir.display()))?;
+        named.push((name.clone(), gains(&c)));
+    }
+    if let Some(run) = given.session {
+        for (name, g) in session_policies(run)? {
+            if !named.iter().any(|(_, other)| *other == g) {
+                named.push((name, g));
+            }
+        }
+    }
+    if given.start.is_none() {
+        named.extend(trainer::twin_limit::softer_starts(lqr));
+    }
+    for (i, (name, _)) in named.iter().enumerate() {
+        if named[..i].iter().any(|(other, _)| other == name) {
+            bail!("--candidate {name}: two candidates have this name");
+        }
+    }
+    let started = Instant::now();
+    let scored = trainer::experiment::parallel_map(named.len(), &Progress::hidden(), |i| {
+        let c = policy_checkpoint(scenario, learning, named[i].1);
+        evaluate(scenario, &twin, search.eyes, &c, seed, e).map(|v| Candidate {
+            name: named[i].0.clone(),
+            gains: named[i].1,
+            evaluated: v.mean(),
+            lost: v.lost,
+        })
+    })
+    .into_iter()
+    .collect::<Result<Vec<_>, _>>()?;
+    // The held-out sets: every named directory; the noise of the check from the first and the last.
+    let sets = held_out_sets(seed, given.held_out);
+    let mut held = Vec::new();
+    for (name, dir) in given.candidates.iter().filter(|_| !sets.is_empty()) {
+        held.push(held_out(
+            setup,
+            &twin,
+            search.eyes,
+            name,
+            &load_policies(dir)?,
+            &sets,
+            e,
+        )?);
+    }
+    let noise = match (held.first(), held.last()) {
+        (Some(first), Some(last)) if held.len() >= 2 && sets.len() >= 2 => {
+            let diff = |dof: Dof| {
+                let d: Vec<f64> = last
+                    .returns
+                    .get(dof)
+                    .iter()
+                    .zip(first.returns.get(dof))
+                    .map(|(a, b)| a - b)
+                    .collect();
+                trainer::evaluation::spread(&d)
+            };
+            PerDof {
+                sway: diff(Dof::Sway),
+                yaw: diff(Dof::Yaw),
+            }
+        }
+        _ => PerDof::both(f64::NAN),
+    };
     cli::outln!(
-        "twin limit on {} ({} perception): cross-entropy search from sway K = {:?}, yaw K = {:?}; {} candidates x {} generations on {} trials",
+        "twin limit on {} ({} perception): cross-entropy search from sway K = {:?}, yaw K = {:?}; {} candidates x {} generations on {} trials; {} policies to be above",
         twin_path.display(),
         search.eyes,
         start_gains.sway,
         start_gains.yaw,
         search.population,
         search.generations,
-        search.trials
+        search.trials,
+        scored.len()
     )?;
-    let started = Instant::now();
     let progress = Progress::new("twin limit", search.generations as u64);
-    let found =
-        trainer::twin_limit::search(scenario, learning, &twin, start_gains, search, &progress)?;
+    let found = trainer::twin_limit::find(
+        scenario,
+        learning,
+        &twin,
+        start_gains,
+        &scored,
+        search,
+        &Check {
+            seed,
+            trials: e,
+            noise,
+        },
+        given.rounds,
+        &progress,
+    )?;
     progress.finish();
     let limit = policy_checkpoint(scenario, learning, found.gains);
-    let eval = evaluate(scenario, &twin, search.eyes, &limit, seed, e)?;
+    if !sets.is_empty() {
+        held.push(held_out(
+            setup,
+            &twin,
+            search.eyes,
+            "limit",
+            &limit,
+            &sets,
+            e,
+        )?);
+    }
     let lqr_eval = evaluate(
         scenario,
         &twin,
@@ -791,7 +1095,7 @@ fn twin_limit(
         e,
     )?;
     save_policies(out, &limit)?;
-    let (m, l) = (eval.mean(), lqr_eval.mean());
+    let (m, l) = (found.evaluation.mean(), lqr_eval.mean());
     for dof in Dof::ALL {
         cli::outln!(
             "{dof:>4}: limit K = [{:7.3}, {:7.3}]  evaluated return {:9.4}   (LQR K = [{:7.3}, {:7.3}]: {:9.4})",
@@ -804,11 +1108,48 @@ fn twin_limit(
         )?;
     }
     cli::outln!(
-        "evaluation set: seed {seed}, {e} trials; cable lost in {} of them; {} policies evaluated in {:.1} s",
-        eval.lost,
-        found.evaluations,
+        "evaluation set: seed {seed}, {e} trials; cable lost in {} of them; {} rounds, {} policies evaluated in {:.1} s",
+        found.evaluation.lost,
+        found.rounds.len(),
+        found
+            .rounds
+            .iter()
+            .map(|r| r.found.evaluations)
+            .sum::<usize>(),
         started.elapsed().as_secs_f64()
     )?;
+    for dof in Dof::ALL {
+        let best = scored
+            .iter()
+            .max_by(|a, b| a.evaluated.get(dof).total_cmp(b.evaluated.get(dof)));
+        match (found.beaten.get(dof), best) {
+            (Some(b), _) => cli::outln!(
+                "{dof:>4}: check: BEATEN by {} by {:.4} (noise {:.4}) after {} rounds",
+                b.by,
+                b.margin,
+                b.noise,
+                found.rounds.len()
+            )?,
+            (None, Some(c)) => cli::outln!(
+                "{dof:>4}: check: above every candidate beyond the noise (best: {} at {:.4}, noise {:.4})",
+                c.name,
+                c.evaluated.get(dof),
+                noise.get(dof)
+            )?,
+            (None, None) => {}
+        }
+    }
+    for h in &held {
+        cli::outln!(
+            "held out ({} sets): {:<24} yaw {:9.4}  sway {:9.4}  cable lost in {} of {} trials",
+            sets.len(),
+            h.name,
+            h.mean.yaw,
+            h.mean.sway,
+            h.lost,
+            h.trials
+        )?;
+    }
     let json = out.join("limit.json");
     write_json(
         &json,
@@ -816,9 +1157,11 @@ fn twin_limit(
             "twin": twin_path,
             "eyes": search.eyes,
             "gains": found.gains,
-            "evaluation": evaluation_json(&eval),
+            "evaluation": evaluation_json(&found.evaluation),
             "lqr": { "gains": lqr, "evaluation": evaluation_json(&lqr_eval) },
-            "search": { "params": search, "found": found },
+            "search": { "params": search, "rounds": found.rounds },
+            "check": { "candidates": scored, "noise": noise, "beaten": found.beaten },
+            "held_out": { "sets": sets, "policies": held },
         }),
     )
     .with_context(|| format!("writing {}", json.display()))?;
@@ -831,11 +1174,14 @@ fn twin_limit(
     Ok(limit)
 }
 
+/// `trainer step-two-bench`.
 fn step_two_bench(
     setup: &Setup,
     twin_path: &std::path::Path,
     limit_dir: Option<&std::path::Path>,
     params: &BenchParams,
+    shard: Option<Shard>,
+    threads: usize,
     json: &std::path::Path,
 ) -> Result<()> {
     let twin = load_twin(twin_path)?;
@@ -846,48 +1192,102 @@ fn step_two_bench(
         Some(dir) => load_policies(dir)?,
         None => {
             let dir = json.with_extension("limit");
-            let search = SearchParams {
-                eyes: setup.eyes,
-                seed: config::derive_seed(params.seeds[0], "twin-limit/search"),
-                ..SearchParams::default()
+            // As `trainer twin-limit --rounds R` searches it (the shards of a run search it so).
+            let given = LimitInputs {
+                start: None,
+                candidates: &[],
+                session: None,
+                held_out: 0,
+                rounds: params.limit_rounds,
             };
-            twin_limit(setup, twin_path, &dir, params.seeds[0], &search, None)?
+            twin_limit(
+                setup,
+                twin_path,
+                &dir,
+                params.limit_seed,
+                &params.limit_search,
+                &given,
+            )?
         }
     };
-    let progress = Progress::new("seeds", params.seeds.len() as u64);
+    let seeds = shard.map_or_else(|| params.seeds.clone(), |s| s.seeds(&params.seeds));
+    if seeds.is_empty() {
+        bail!(
+            "--shard {}: no seed of the {} falls to it",
+            shard.expect("only a shard can be empty"),
+            params.seeds.len()
+        );
+    }
+    let cores = std::thread::available_parallelism().map_or(1, |p| p.get());
+    let threads = if threads == 0 { cores } else { threads };
+    let progress = Progress::new("seeds", seeds.len() as u64);
     let results = trainer::step_two_bench::run(
         &setup.scenario,
         &setup.learning,
         &twin,
         &limit,
         params,
+        &seeds,
+        threads,
         &progress,
     )?;
     progress.finish();
+    let file = BenchFile {
+        twin: twin_path.to_owned(),
+        twin_params: twin,
+        scenario: setup.scenario.clone(),
+        learning: setup.learning.clone(),
+        params: params.clone(),
+        limit: trainer::step_two_bench::gains(&limit),
+        shard,
+        summary: trainer::step_two_bench::summary(&results),
+        seeds: results,
+        timing: Timing {
+            wall_s: started.elapsed().as_secs_f64(),
+            threads,
+            shards_wall_s: Vec::new(),
+        },
+    };
+    if let Some(s) = shard {
+        cli::outln!("shard {s}: seeds {:?}", seeds)?;
+    }
+    cli::outln!("{}", file.table().trim_end())?;
+    write_bench_file(json, &file)?;
     cli::outln!(
-        "{}",
-        trainer::step_two_bench::table(&results, params).trim_end()
+        "wrote {} ({:.0} s on {threads} threads)",
+        json.display(),
+        file.timing.wall_s
     )?;
+    Ok(())
+}
+
+fn write_bench_file(json: &std::path::Path, file: &BenchFile) -> Result<()> {
     if let Some(dir) = json.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    write_json(
-        json,
-        &serde_json::json!({
-            "twin": twin_path,
-            "params": params,
-            "learning": setup.learning,
-            "limit": { "sway": limit.get(Dof::Sway).map(|s| s.policy.gain), "yaw": limit.get(Dof::Yaw).map(|s| s.policy.gain) },
-            "summary": trainer::step_two_bench::summary(&results),
-            "seeds": results,
-            "wall_s": started.elapsed().as_secs_f64(),
-        }),
-    )
-    .with_context(|| format!("writing {}", json.display()))?;
+    write_json(json, file).with_context(|| format!("writing {}", json.display()))
+}
+
+/// `trainer step-two-merge`.
+fn step_two_merge(shards: &[PathBuf], json: &std::path::Path) -> Result<()> {
+    let files = shards
+        .iter()
+        .map(|p| {
+            let text =
+                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            let file: BenchFile = serde_json::from_str(&text)
+                .with_context(|| format!("parsing {} (a step-two-bench file?)", p.display()))?;
+            Ok((p.display().to_string(), file))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let merged = trainer::step_two_bench::merge(&files)?;
+    cli::outln!("{}", merged.table().trim_end())?;
+    write_bench_file(json, &merged)?;
     cli::outln!(
-        "wrote {} ({:.0} s)",
+        "wrote {} ({} shards, {:.0} s in all)",
         json.display(),
-        started.elapsed().as_secs_f64()
+        files.len(),
+        merged.timing.wall_s
     )?;
     Ok(())
 }

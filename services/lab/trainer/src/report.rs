@@ -4,7 +4,9 @@
 //! ```text
 //! DIR/fig5/fig5.json                 step one's learning curves over 100 runs (trainer fig5)
 //! DIR/step-one/run.json, *.ckpt      step one through the mesh: per-episode returns, the policies
-//! DIR/twin-limit/limit.json, *.ckpt  the twin's limit (trainer twin-limit)
+//! DIR/twin-limit/limit.json, *.ckpt  the twin's limit (trainer twin-limit: searched with images,
+//!                                    checked against the simulation policy and step two's; the
+//!                                    three policies on held-out sets, with the cables lost)
 //! DIR/eval-sim/run.json              evaluations through the vehicle mesh (the evaluation set: the
 //! DIR/eval/run.json, trace.jsonl     twin's first start marks, fixed noise, not learning): the
 //! DIR/eval-limit/run.json            simulation policy with the reality gap off, the simulation
@@ -16,14 +18,15 @@
 //!
 //! It writes `DIR/report/report.md` with its PNG figures, and `DIR/summary.json`.
 
-use crate::evaluation::gap_closed;
+use crate::evaluation::{gap_closed, spread};
 use crate::figures::{Fig5, PolicyMap, write_json};
+use crate::twin_limit::{Beaten, Candidate, beaten};
 use anyhow::{Context, Result, bail};
 use config::{Dof, PerDof, Scenario};
 use learning::checkpoint::Checkpoint;
 use plot::{Figure, LineChart, Panel, RefLine, Series};
 use records::{EvaluationRecord, RunRecord, SafetyCounts, TracePoint};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -48,10 +51,51 @@ pub struct Summary {
     pub gap_closed: PerDof<f64>,
     /// Where `|J_limit - J_sim|` is under 5% of `|J_sim|` the ratio is noise.
     pub gap_is_noise: PerDof<bool>,
+    /// The simulation policy, step two's and the limit on held-out sets (other starts, floors and
+    /// noise), with the gap closed there; when the limit's run evaluated them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub held_out: Option<HeldOutSummary>,
+    /// Whether the limit is above the policies evaluated beside it, beyond the evaluation's noise.
+    pub limit_check: LimitCheck,
     /// Each behaviour's safety layer over step two.
     pub safety: PerDof<SafetyCounts>,
     /// Trials of step two that lost the cable: learning trials, evaluation trials.
     pub lost: Lost,
+}
+
+/// A policy on the held-out sets.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HeldOutPolicy {
+    pub name: String,
+    /// Each set's evaluated return.
+    pub returns: PerDof<Vec<f64>>,
+    pub mean: PerDof<f64>,
+    pub lost: u32,
+    pub trials: u32,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct HeldOutSummary {
+    /// The sets' seeds.
+    pub sets: Vec<u64>,
+    pub sim_policy: HeldOutPolicy,
+    pub after: HeldOutPolicy,
+    pub limit: HeldOutPolicy,
+    /// The gap closed on them (their mean returns).
+    pub gap_closed: PerDof<f64>,
+    /// The evaluation's noise on a difference: the spread over the sets of `after - sim`.
+    pub noise: PerDof<f64>,
+}
+
+/// The limit against the policies evaluated beside it on the evaluation set (J_sim, J_after).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct LimitCheck {
+    /// The evaluation's noise on a difference (NaN: not measured, any margin counts).
+    pub noise: PerDof<f64>,
+    /// Per DOF, the policy above the limit by more than twice the noise, and by how much.
+    pub beaten: PerDof<Option<Beaten>>,
+    /// The perception the limit was searched with.
+    pub searched_with: Option<String>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -206,6 +250,44 @@ pub fn gap_is_noise(sim: f64, limit: f64) -> bool {
     (limit - sim).abs() < 0.05 * sim.abs()
 }
 
+/// The limit against the simulation policy and step two's on one set (each evaluated return with
+/// the trials in which it lost the cable): per DOF, the one above it by more than twice `noise` (see
+/// [`crate::twin_limit::beaten`]).
+pub fn limit_check(
+    sim: (PerDof<f64>, u32),
+    after: (PerDof<f64>, u32),
+    limit: (PerDof<f64>, u32),
+    noise: PerDof<f64>,
+) -> PerDof<Option<Beaten>> {
+    let policies = [("the simulation policy", sim), ("step two's policy", after)].map(
+        |(name, (evaluated, lost))| Candidate {
+            name: name.to_owned(),
+            gains: PerDof::default(),
+            evaluated,
+            lost,
+        },
+    );
+    beaten(limit.0, limit.1, &policies, noise)
+}
+
+/// The trials of a run that lost the cable.
+fn lost_in(r: &RunRecord) -> u32 {
+    r.lost.iter().filter(|l| **l).count() as u32
+}
+
+/// What `twin-limit/limit.json` says of the held-out sets: the sets and each policy's returns.
+fn read_held_out(limit_json: &serde_json::Value) -> Result<Option<(Vec<u64>, Vec<HeldOutPolicy>)>> {
+    let h = &limit_json["held_out"];
+    if h.is_null() || h["sets"].as_array().is_none_or(|s| s.is_empty()) {
+        return Ok(None);
+    }
+    let sets: Vec<u64> = serde_json::from_value(h["sets"].clone())
+        .context("twin-limit/limit.json: held_out.sets")?;
+    let policies: Vec<HeldOutPolicy> = serde_json::from_value(h["policies"].clone())
+        .context("twin-limit/limit.json: held_out.policies")?;
+    Ok(Some((sets, policies)))
+}
+
 /// Writes the report of `dir`; returns the path of `report.md`.
 pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
     let out = dir.join("report");
@@ -238,6 +320,54 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
     let noise = PerDof {
         sway: gap_is_noise(j_sim.sway, j_limit.sway),
         yaw: gap_is_noise(j_sim.yaw, j_limit.yaw),
+    };
+    // The held-out sets, as the limit's run evaluated the job's three policies on them (the job
+    // names them sim, after and limit).
+    let held_out = match read_held_out(&limit_json)? {
+        Some((sets, policies)) => {
+            let find = |name: &str| {
+                policies
+                    .iter()
+                    .find(|p| p.name == name)
+                    .cloned()
+                    .with_context(|| format!("twin-limit/limit.json: no held-out policy `{name}`"))
+            };
+            let (s, a, l) = (find("sim")?, find("after")?, find("limit")?);
+            let diff = |dof: Dof| {
+                let d: Vec<f64> = a
+                    .returns
+                    .get(dof)
+                    .iter()
+                    .zip(s.returns.get(dof))
+                    .map(|(x, y)| x - y)
+                    .collect();
+                spread(&d)
+            };
+            Some(HeldOutSummary {
+                gap_closed: per_dof(&|d| {
+                    gap_closed(*s.mean.get(d), *a.mean.get(d), *l.mean.get(d))
+                }),
+                noise: per_dof(&diff),
+                sets,
+                sim_policy: s,
+                after: a,
+                limit: l,
+            })
+        }
+        None => None,
+    };
+    let check_noise = held_out
+        .as_ref()
+        .map_or(PerDof::both(f64::NAN), |h| h.noise);
+    let limit_check = LimitCheck {
+        noise: check_noise,
+        beaten: limit_check(
+            (j_sim, lost_in(&eval)),
+            (j_after, lost_in(&eval_after)),
+            (j_limit, lost_in(&eval_limit)),
+            check_noise,
+        ),
+        searched_with: limit_json["eyes"].as_str().map(str::to_owned),
     };
 
     let mut md = String::new();
@@ -449,10 +579,75 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
     }
     writeln!(
         md,
-        "\nThe twin's limit: sway K = [{:.3}, {:.3}], yaw K = [{:.3}, {:.3}] (direct policy search on the twin, \
-         `twin-limit/limit.json`).\n",
-        limit_gains.sway[0], limit_gains.sway[1], limit_gains.yaw[0], limit_gains.yaw[1]
+        "\nCable lost on the evaluation set: the simulation policy in {} of {} trials, after step two in {}, the twin's \
+         limit in {} (a trial cut short by a lost cable costs less than a whole one: a return with cables lost is a \
+         failed policy's).",
+        lost_in(&eval),
+        eval.episodes,
+        lost_in(&eval_after),
+        lost_in(&eval_limit)
     )?;
+    writeln!(
+        md,
+        "\nThe twin's limit: sway K = [{:.3}, {:.3}], yaw K = [{:.3}, {:.3}] (direct policy search on the twin with {} \
+         perception, the simulation policy and every policy step two evaluated in its first generation, \
+         `twin-limit/limit.json`).",
+        limit_gains.sway[0],
+        limit_gains.sway[1],
+        limit_gains.yaw[0],
+        limit_gains.yaw[1],
+        limit_check.searched_with.as_deref().unwrap_or("unknown")
+    )?;
+    for dof in [Dof::Yaw, Dof::Sway] {
+        let n = *limit_check.noise.get(dof);
+        let n_text = if n.is_finite() {
+            format!("twice the evaluation's noise on a difference, 2 x {n:.4}")
+        } else {
+            "the noise was not measured: any margin".to_owned()
+        };
+        match limit_check.beaten.get(dof) {
+            Some(b) => writeln!(
+                md,
+                "- {dof}: **the limit is beaten**: {} evaluates {:.4} above it ({n_text}); the gap closed is not a share of a real gap.",
+                b.by, b.margin
+            )?,
+            None => writeln!(
+                md,
+                "- {dof}: the limit is not below the simulation policy nor step two's beyond {n_text}."
+            )?,
+        }
+    }
+    writeln!(md)?;
+    if let Some(h) = &held_out {
+        writeln!(
+            md,
+            "On {} held-out sets (other starts, floors and noise than the evaluation set's: what the vehicle will meet), \
+             {} trials per policy:\n\n\
+             | policy | yaw, mean | sway, mean | cable lost |\n|---|---:|---:|---:|",
+            h.sets.len(),
+            h.sim_policy.trials
+        )?;
+        for (name, p) in [
+            ("simulation policy", &h.sim_policy),
+            ("after step two", &h.after),
+            ("the twin's limit", &h.limit),
+        ] {
+            writeln!(
+                md,
+                "| {name} | {:.4} | {:.4} | {} of {} |",
+                p.mean.yaw, p.mean.sway, p.lost, p.trials
+            )?;
+        }
+        writeln!(
+            md,
+            "\nGap closed on them: yaw {:.0}%, sway {:.0}%; the evaluation's noise on a difference (the spread over the sets \
+             of J_after - J_sim): yaw {:.4}, sway {:.4}.\n",
+            100.0 * h.gap_closed.yaw,
+            100.0 * h.gap_closed.sway,
+            h.noise.yaw,
+            h.noise.sway
+        )?;
+    }
     writeln!(md, "Step two's evaluations:\n")?;
     writeln!(
         md,
@@ -593,6 +788,8 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
         },
         gap_closed: closed,
         gap_is_noise: noise,
+        held_out,
+        limit_check,
         safety: session.safety,
         lost: Lost {
             learning: lost(false),
@@ -630,6 +827,34 @@ mod tests {
         assert!(gap_is_noise(-10.0, -9.6));
         assert!(!gap_is_noise(-10.0, -9.4));
         assert!(!gap_is_noise(-1.0, -0.5));
+    }
+
+    /// The report's check of the limit names a policy above it beyond twice the noise, in that DOF
+    /// only; within the noise, or for a policy that lost more cables than the limit, it does not.
+    #[test]
+    fn the_report_says_when_a_policy_beats_the_limit() {
+        let j = |sway, yaw| PerDof { sway, yaw };
+        let noise = j(0.01, 0.1);
+        let limit = (j(-1.0, -5.0), 0);
+        // The simulation policy above the limit in yaw by 0.3 > 2 x 0.1: beaten, by it.
+        let c = limit_check((j(-1.5, -4.7), 0), (j(-1.1, -5.1), 0), limit, noise);
+        assert!(c.sway.is_none());
+        let yaw = c
+            .yaw
+            .expect("yaw: the limit is below the simulation policy");
+        assert_eq!(yaw.by, "the simulation policy");
+        assert!((yaw.margin - 0.3).abs() < 1e-12);
+        // Step two's above it in sway by 0.05 > 2 x 0.01; yaw within the noise (0.15 < 0.2).
+        let c = limit_check((j(-1.5, -6.0), 0), (j(-0.95, -4.85), 0), limit, noise);
+        assert_eq!(c.sway.expect("sway").by, "step two's policy");
+        assert!(c.yaw.is_none());
+        // A policy that lost the cable where the limit kept it failed, whatever its return.
+        let c = limit_check((j(-0.5, -3.0), 1), (j(-1.1, -5.1), 0), limit, noise);
+        assert!(c.sway.is_none() && c.yaw.is_none());
+        // Noise not measured: any margin beats the limit.
+        let nan = PerDof::both(f64::NAN);
+        let c = limit_check((j(-0.999, -6.0), 0), (j(-1.1, -5.1), 0), limit, nan);
+        assert!(c.sway.is_some() && c.yaw.is_none());
     }
 
     #[test]

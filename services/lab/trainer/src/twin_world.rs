@@ -11,7 +11,7 @@ use messages::{CableObservationMsg, CameraFrameHeader, LearningStats, Stamp, Ste
 use perception::Observer;
 use surge_controller::SurgeController;
 use thruster_allocator::Allocator;
-use vehicle_twin::{Shot, Twin};
+use vehicle_twin::{Shot, Twin, TwinError};
 use vision::VisionError;
 
 /// What one trial gave.
@@ -115,7 +115,7 @@ impl TwinWorld {
         agents: PerDof<Agent>,
         eyes: Eyes,
         seed: u64,
-    ) -> Result<Self, VisionError> {
+    ) -> Result<Self, TwinError> {
         let behaviours = PerDof {
             sway: Behaviour::new(agents.sway),
             yaw: Behaviour::new(agents.yaw),
@@ -130,16 +130,16 @@ impl TwinWorld {
         behaviours: PerDof<Behaviour>,
         eyes: Eyes,
         seed: u64,
-    ) -> Result<Self, VisionError> {
+    ) -> Result<Self, TwinError> {
         let images = eyes == Eyes::Images;
         let twin = Twin::new(scenario, twin, seed, images)?;
-        let observer = Observer::new(scenario, eyes)?;
+        let observer = Observer::new(scenario, eyes).map_err(TwinError::Vision)?;
         let (w, h) = twin.eye().size();
         Ok(TwinWorld {
             twin,
             observer,
             behaviours,
-            surge: SurgeController::new(&scenario.surge, &scenario.model.surge),
+            surge: SurgeController::new(&scenario.surge, &scenario.commanded_model().surge),
             allocator: Allocator::new(&scenario.thrusters),
             image: if images {
                 vec![0; w as usize * h as usize]
@@ -359,6 +359,8 @@ pub enum FromCheckpointError {
     Guard(#[from] LqrError),
     #[error(transparent)]
     Vision(#[from] VisionError),
+    #[error(transparent)]
+    Twin(#[from] TwinError),
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
 }

@@ -92,7 +92,7 @@ impl World {
             sim: Simulator::new(scenario, sim_seed),
             perceiver,
             agents,
-            surge: SurgeController::new(&scenario.surge, &scenario.model.surge),
+            surge: SurgeController::new(&scenario.surge, &scenario.commanded_model().surge),
             allocator: Allocator::new(&scenario.thrusters),
             sample_time_s: scenario.timing.sample_time_s,
             trace: None,

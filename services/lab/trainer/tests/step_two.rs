@@ -9,7 +9,10 @@
 
 use config::{Dof, Eyes, PerDof, TwinParams};
 use trainer::evaluation::{evaluate, policy_checkpoint};
-use trainer::step_two_bench::{BenchParams, run, summary};
+use trainer::progress::Progress;
+use trainer::step_two_bench::{
+    BenchFile, BenchParams, SeedResult, Shard, Timing, candidates, merge, run, summary,
+};
 use trainer::twin_limit::{SearchParams, search};
 use trainer::twin_world::{Mode, TwinWorld};
 use trainer::{Setup, experiment};
@@ -22,42 +25,82 @@ fn twin(file: &str) -> TwinParams {
     config::load(&testkit::config_dir().join(file)).unwrap()
 }
 
-/// Step two over seeds 1 to 8 on `twin` (ideal perception, 20 learning trials each), against the
-/// twin's limit searched first; the table is printed.
-fn eight_seeds(s: &Setup, twin: &TwinParams) -> Vec<trainer::step_two_bench::SeedResult> {
+/// The bench's parameters with ideal perception.
+fn ideal_params(seeds: Vec<u64>, trials: u32, sim_episodes: usize, held_out: u32) -> BenchParams {
+    BenchParams {
+        seeds,
+        trials,
+        sim_episodes,
+        eyes: Eyes::Ideal,
+        sim_eyes: Eyes::Ideal,
+        held_out,
+        every_trial: false,
+        limit_search: SearchParams {
+            eyes: Eyes::Ideal,
+            ..SearchParams::default()
+        },
+        limit_rounds: 3,
+        limit_seed: 1,
+    }
+}
+
+/// Step two over seeds 1 to 8 on `twin` (ideal perception, 20 learning trials each, 2 held-out
+/// sets for the noise), against the twin's limit searched first; the table is printed.
+fn eight_seeds(s: &Setup, twin: &TwinParams) -> Vec<SeedResult> {
+    let params = ideal_params((1..=8).collect(), 20, 100, 2);
     let limit_gains = search(
         &s.scenario,
         &s.learning,
         twin,
         experiment::lqr_gains(s).unwrap(),
-        &SearchParams {
-            eyes: Eyes::Ideal,
-            ..SearchParams::default()
-        },
-        &trainer::progress::Progress::hidden(),
+        &[],
+        &params.limit_search,
+        &Progress::hidden(),
     )
     .unwrap()
     .gains;
     let limit = policy_checkpoint(&s.scenario, &s.learning, limit_gains);
-    let params = BenchParams {
-        seeds: (1..=8).collect(),
-        trials: 20,
-        sim_episodes: 100,
-        eyes: Eyes::Ideal,
-        held_out: 0,
-        every_trial: false,
-    };
     let results = run(
         &s.scenario,
         &s.learning,
         twin,
         &limit,
         &params,
-        &trainer::progress::Progress::hidden(),
+        &params.seeds,
+        0,
+        &Progress::hidden(),
     )
     .unwrap();
     print!("{}", trainer::step_two_bench::table(&results, &params));
     results
+}
+
+/// No row shows a limit below a policy it evaluated on its set by more than twice the row's
+/// evaluation noise (the spread of `after - sim` over its held-out sets): not the simulation policy,
+/// not step two's final one, not any policy its session evaluated.
+fn assert_every_limit_is_a_limit(results: &[SeedResult]) {
+    for r in results {
+        assert!(
+            !r.limit_is_beaten(),
+            "seed {}: the row says its limit is beaten: {:?}",
+            r.seed,
+            r.limit_beaten
+        );
+        for c in candidates(&r.curve, &r.every_trial, r.after_gains, r.after) {
+            for dof in Dof::ALL {
+                let noise = r.difference_noise(dof);
+                let noise = if noise.is_finite() { noise } else { 0.0 };
+                assert!(
+                    r.limit.get(dof) >= &(c.evaluated.get(dof) - 2.0 * noise),
+                    "seed {} {dof}: the limit {} is below {} ({}) beyond twice the noise {noise}",
+                    r.seed,
+                    r.limit.get(dof),
+                    c.name,
+                    c.evaluated.get(dof)
+                );
+            }
+        }
+    }
 }
 
 /// The search, from a quarter of the LQR gains, on the twin with its reality gap off (the identified model),
@@ -82,6 +125,7 @@ fn the_limit_search_finds_the_lqr_gain_with_the_gap_off() {
         &s.learning,
         &ideal,
         start,
+        &[],
         &params,
         &trainer::progress::Progress::hidden(),
     )
@@ -135,11 +179,17 @@ fn step_two_closes_the_gap_on_the_harsh_twin_and_never_leaves_a_seed_worse() {
     let results = eight_seeds(&s, &harsh);
     let verdict = summary(&results);
     for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
-        // The README's benchmark (12 seeds, ideal perception) has a median gap closed of 65% for
-        // yaw and 100% for sway; these 8 seeds measured 68% and 100%. The bound 50% leaves yaw 15
-        // points for the spread of the median between seed sets (its seeds range 21% to 86%).
+        // The published benchmark (12 seeds, ideal perception, `scripts/bench-step-two --eyes
+        // ideal`): median gap closed 63% for yaw (seeds 22% to 85%) and 100% for sway (99% to
+        // 127%). The margin is what the spread over those seeds needs for 8 of them: the lowest
+        // median any 8 of the 12 give is 54.3% for yaw and 100.0% for sway, so the bounds are 54%
+        // and 99% (63% and 100% less 9 and 1 points). Seeds 1 to 8 measured 66.9% and 100.0%.
+        let bound = match dof {
+            Dof::Yaw => 0.54,
+            Dof::Sway => 0.99,
+        };
         assert!(
-            d.median_gap_closed >= 0.5,
+            d.median_gap_closed >= bound,
             "{dof}: median gap closed {}",
             d.median_gap_closed
         );
@@ -155,6 +205,7 @@ fn step_two_closes_the_gap_on_the_harsh_twin_and_never_leaves_a_seed_worse() {
         }
     }
     assert_eq!(verdict.lost, 0, "no trial loses the cable");
+    assert_every_limit_is_a_limit(&results);
 }
 
 /// Over several seeds on the harsh twin with the current across the cable (ideal perception): no
@@ -184,12 +235,18 @@ fn no_trial_loses_the_cable_on_the_harsh_twin_with_a_cross_current() {
         );
     }
     assert_eq!(verdict.lost, 0);
+    assert_every_limit_is_a_limit(&results);
     for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
-        // Measured on these 8 seeds (the limit searched here): median gap closed 63% for yaw
-        // (seeds 22% to 90%) and 99% for sway; the README's 12 seeds: 58% and 100%. The bound 50%
-        // is the target, which the yaw median clears by 13 points.
+        // The published benchmark (12 seeds, ideal perception): median gap closed 58% for yaw
+        // (seeds 0% to 90%) and 100% for sway (95% to 255%). The lowest median any 8 of those 12
+        // seeds give is 50.4% for yaw and 99.3% for sway, so the bounds are 50% and 99% (58% and
+        // 100% less 8 and 1 points). Seeds 1 to 8 measured 59.5% and 99.3%.
+        let bound = match dof {
+            Dof::Yaw => 0.50,
+            Dof::Sway => 0.99,
+        };
         assert!(
-            d.median_gap_closed >= 0.5,
+            d.median_gap_closed >= bound,
             "{dof}: median gap closed {}",
             d.median_gap_closed
         );
@@ -212,7 +269,8 @@ fn a_sessions_evaluations_are_the_protocols() {
     let s = setup();
     let mut harsh = twin("twin-harsh.toml");
     harsh.trials.duration_s = 30.0;
-    let sim = trainer::step_two_bench::step_one(&s.scenario, &s.learning, 60, 4);
+    let sim =
+        trainer::step_two_bench::step_one(&s.scenario, &s.learning, 60, Eyes::Ideal, 4).unwrap();
     let e = s.learning.evaluation.trials;
     let seed = 4;
     let mut world =
@@ -259,7 +317,8 @@ fn a_sessions_evaluations_are_the_protocols() {
 #[test]
 fn the_same_seed_gives_the_same_trials() {
     let s = setup();
-    let sim = trainer::step_two_bench::step_one(&s.scenario, &s.learning, 10, 3);
+    let sim =
+        trainer::step_two_bench::step_one(&s.scenario, &s.learning, 10, Eyes::Ideal, 3).unwrap();
     let run = || {
         let mut w = TwinWorld::from_checkpoint(
             &s.scenario,
@@ -411,4 +470,115 @@ fn a_rollback_restores_the_best_policy() {
         assert!(restored > 0, "seed {seed}: no rollback");
         assert!(run.last().unwrap().rollbacks.sway + run.last().unwrap().rollbacks.yaw > 0);
     }
+}
+
+/// The bench's small run on the harsh twin for the tests below: 3 seeds of short trials, ideal
+/// perception, every learning trial evaluated, 2 held-out sets, a small limit search.
+fn small_run() -> (Setup, TwinParams, BenchParams) {
+    let s = setup();
+    let mut harsh = twin("twin-harsh.toml");
+    harsh.trials.duration_s = 20.0;
+    let mut params = ideal_params(vec![1, 2, 3], 5, 20, 2);
+    params.every_trial = true;
+    params.limit_search.population = 6;
+    params.limit_search.generations = 4;
+    params.limit_search.trials = 5;
+    (s, harsh, params)
+}
+
+/// A limit that is no limit (no steering at all, which every learned policy beats): each seed's
+/// search goes on from its policies, and no row then shows a limit below a policy it evaluated
+/// beyond the noise. Without the search going on, every row would (the first assertion).
+#[test]
+fn a_row_never_shows_a_limit_below_a_policy_it_evaluated() {
+    let (s, harsh, params) = small_run();
+    let poor = policy_checkpoint(&s.scenario, &s.learning, PerDof::default());
+    let results = run(
+        &s.scenario,
+        &s.learning,
+        &harsh,
+        &poor,
+        &params,
+        &params.seeds,
+        0,
+        &Progress::hidden(),
+    )
+    .unwrap();
+    print!("{}", trainer::step_two_bench::table(&results, &params));
+    let e = s.learning.evaluation.trials;
+    for r in &results {
+        let given = evaluate(&s.scenario, &harsh, Eyes::Ideal, &poor, r.seed, e)
+            .unwrap()
+            .mean();
+        assert!(
+            given.yaw < r.sim.yaw && given.sway < r.sim.sway,
+            "seed {}: the poor limit was no poorer than the simulation policy",
+            r.seed
+        );
+        assert!(
+            !r.limit_rounds.is_empty(),
+            "seed {}: the search did not go on",
+            r.seed
+        );
+    }
+    assert_every_limit_is_a_limit(&results);
+}
+
+/// Seeds in parallel give the rows a sequential run gives, and shards merged give the unsplit run's
+/// file and table: the unsplit run on 2 threads, shards 1/2 and 2/2 each on 1 thread and through
+/// their JSON text (as `step-two-merge` reads them), merged.
+#[test]
+fn shards_merged_give_the_unsplit_table_and_threads_change_nothing() {
+    let (s, harsh, params) = small_run();
+    let limit = policy_checkpoint(&s.scenario, &s.learning, experiment::lqr_gains(&s).unwrap());
+    let file = |seeds: &[u64], threads, shard| {
+        let rows = run(
+            &s.scenario,
+            &s.learning,
+            &harsh,
+            &limit,
+            &params,
+            seeds,
+            threads,
+            &Progress::hidden(),
+        )
+        .unwrap();
+        BenchFile {
+            twin: "twin-harsh.toml".into(),
+            twin_params: harsh.clone(),
+            scenario: s.scenario.clone(),
+            learning: s.learning.clone(),
+            params: params.clone(),
+            limit: trainer::step_two_bench::gains(&limit),
+            shard,
+            summary: summary(&rows),
+            seeds: rows,
+            timing: Timing {
+                wall_s: 1.0,
+                threads,
+                shards_wall_s: Vec::new(),
+            },
+        }
+    };
+    let unsplit = file(&params.seeds, 2, None);
+    let shards: Vec<(String, BenchFile)> = [Shard { k: 2, n: 2 }, Shard { k: 1, n: 2 }]
+        .into_iter()
+        .map(|shard| {
+            let f = file(&shard.seeds(&params.seeds), 1, Some(shard));
+            let text = serde_json::to_string_pretty(&f).unwrap();
+            (
+                format!("shard {shard}"),
+                serde_json::from_str(&text).unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(shards[1].1.seeds.len(), 2, "shard 1/2 runs seeds 1 and 3");
+    let merged = merge(&shards).unwrap();
+    print!("{}", merged.table());
+    assert_eq!(merged.table(), unsplit.table());
+    assert_eq!(merged.without_timing(), unsplit.without_timing());
+    assert_eq!(merged.timing.shards_wall_s, vec![1.0, 1.0]);
+    // A shard missing, or given twice, is refused.
+    assert!(merge(&shards[..1]).is_err());
+    assert!(merge(&[shards[0].clone(), shards[0].clone()]).is_err());
 }

@@ -7,15 +7,14 @@
 
 use crate::{Camera, TrialLog};
 use anyhow::Context;
-use config::AutopilotParams;
 use mavlink::Message;
 use runtime::lockstep::{Cause, Limits, Lockstep, Reaction};
 use runtime::{Flow, Runtime, Timer};
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 use vehicle_twin::Twin;
-use vehicle_twin::ardusub::{ArduSub, Counters, Fault, Out, Url, wire};
-use vehicle_twin::driver::{Piloted, RealTime, Tick, vehicle_of};
+use vehicle_twin::ardusub::{ArduSub, Counters, Fault, Out, Url, vehicle_of, wire};
+use vehicle_twin::driver::{Piloted, RealTime, Tick};
 
 /// The autopilot loop's wake-up period: the autopilot's clock (streams, the failsafe) is that fine.
 const TICK: Duration = Duration::from_millis(20);
@@ -27,7 +26,6 @@ const LOG_EVERY: Duration = Duration::from_secs(5);
 pub(crate) struct Setup {
     pub url: Url,
     pub faults: Vec<Fault>,
-    pub params: AutopilotParams,
     /// Lockstep with these limits; real time otherwise.
     pub lockstep: Option<Limits>,
     pub period: Duration,
@@ -164,6 +162,15 @@ impl Link {
     }
 }
 
+/// The autopilot of the clock's piloted twin.
+fn core(clock: &mut RealTime) -> &mut ArduSub {
+    clock
+        .twin_mut()
+        .autopilot_mut()
+        .expect("a piloted twin")
+        .core_mut()
+}
+
 /// Runs the twin behind the autopilot until its trials are done or a signal stops it.
 pub(crate) fn run(
     rt: &Runtime,
@@ -176,14 +183,13 @@ pub(crate) fn run(
     // The loop waits on the socket while the handler reads and writes it: it waits on a duplicate.
     let waker = link.socket.try_clone()?;
     let fd = std::os::fd::AsFd::as_fd(&waker);
-    let autopilot = ArduSub::new(&setup.params, setup.faults.clone(), Instant::now());
-    let piloted = Piloted::new(twin, autopilot)
-        .map_err(|e| anyhow::anyhow!("--autopilot needs the BlueROV2's vectored layout: {e}"))?;
+    let mut piloted = Piloted::new(twin).map_err(|e| anyhow::anyhow!("--autopilot: {e}"))?;
+    piloted.autopilot_mut().inject(setup.faults.clone());
     tracing::info!(
         port = %link.socket.local_addr()?,
         url = ?setup.url,
-        system_id = piloted.autopilot.system_id(),
-        generation = setup.params.generation.name(),
+        system_id = piloted.autopilot().system_id(),
+        generation = piloted.autopilot().generation().name(),
         faults = ?setup.faults,
         "the ArduSub stand-in is on its MAVLink port"
     );
@@ -245,9 +251,9 @@ fn lockstep(
         Timer::Interval(TICK),
         |_| {
             let now = Instant::now();
-            let frames = link.receive(now, &lockstep.plant().autopilot)?;
+            let frames = link.receive(now, lockstep.plant().autopilot())?;
             for frame in frames {
-                let tag = lockstep.plant_mut().autopilot.receive(now, &frame);
+                let tag = lockstep.plant_mut().autopilot_mut().receive(now, &frame);
                 let Some(tag) = tag else { continue };
                 if !Piloted::tags(lockstep.current(), &tag) {
                     tracing::debug!(?tag, "a step tag for another frame");
@@ -256,18 +262,18 @@ fn lockstep(
                 let key = lockstep.current().time_ns();
                 let r = lockstep.on_answer(key, &[], now);
                 if act(&mut lockstep, r)? == Flow::Stop {
-                    link.send(now, &mut lockstep.plant_mut().autopilot);
+                    link.send(now, lockstep.plant_mut().autopilot_mut());
                     return Ok(Flow::Stop);
                 }
             }
-            lockstep.plant_mut().autopilot.on_time(now);
-            link.send(now, &mut lockstep.plant_mut().autopilot);
-            link.log_counts(now, &lockstep.plant().autopilot, false);
+            lockstep.plant_mut().autopilot_mut().on_time(now);
+            link.send(now, lockstep.plant_mut().autopilot_mut());
+            link.log_counts(now, lockstep.plant().autopilot(), false);
             let r = lockstep.on_time(now);
             act(&mut lockstep, r)
         },
     )?;
-    link.log_counts(Instant::now(), &lockstep.plant().autopilot, true);
+    link.log_counts(Instant::now(), lockstep.plant().autopilot(), true);
     Ok(())
 }
 
@@ -280,27 +286,22 @@ fn real_time(
     camera: &mut Camera,
     log: &mut TrialLog,
 ) -> anyhow::Result<()> {
-    let Piloted {
-        twin,
-        mut autopilot,
-    } = piloted;
+    let Piloted { twin } = piloted;
     let mut clock = RealTime::new(twin, setup.period, setup.trials);
     rt.serve_inputs(
         &[runtime::Input::Readable(fd)],
         Timer::Interval(TICK),
         |_| {
             let now = Instant::now();
-            for frame in link.receive(now, &autopilot)? {
+            for frame in link.receive(now, core(&mut clock))? {
                 // Tags are for lockstep; in real time each period takes the newest input held.
-                autopilot.receive(now, &frame);
+                core(&mut clock).receive(now, &frame);
             }
-            autopilot.on_time(now);
-            let tick = clock.on_time_with(now, camera.listening(), &mut |t, _| {
-                Piloted::step(t, &mut autopilot)
-            });
+            core(&mut clock).on_time(now);
+            let tick = clock.on_time_with(now, camera.listening(), &mut |t, _| Piloted::step(t));
             let flow = match tick {
                 Tick::Publish { shot, ended, .. } => {
-                    autopilot.observe(vehicle_of(&shot.state, &shot.rate));
+                    core(&mut clock).observe(vehicle_of(&shot.state, &shot.rate));
                     log.closed(&ended, 0, false, &shot);
                     camera.publish(clock.twin_mut(), &shot, false, &mut None)?;
                     Flow::Continue
@@ -312,11 +313,11 @@ fn real_time(
                 }
                 Tick::Idle => Flow::Continue,
             };
-            link.send(now, &mut autopilot);
-            link.log_counts(now, &autopilot, false);
+            link.send(now, core(&mut clock));
+            link.log_counts(now, core(&mut clock), false);
             Ok(flow)
         },
     )?;
-    link.log_counts(Instant::now(), &autopilot, true);
+    link.log_counts(Instant::now(), core(&mut clock), true);
     Ok(())
 }

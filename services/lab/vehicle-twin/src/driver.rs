@@ -16,9 +16,8 @@
 //! In both, a dropped frame is not published: nothing answers it and the twin moves on (in lockstep
 //! at once). Both stop after the requested number of trials.
 
-use crate::ardusub::{self, ArduSub, Vehicle, mixer};
+use crate::ardusub::{self, ArduSub};
 use crate::twin::{Shot, TrialEnd, Twin};
-use model::{PoseRate, VehicleState};
 use runtime::lockstep::{Advanced, Plant};
 use std::time::{Duration, Instant};
 
@@ -48,42 +47,37 @@ fn answered(twin: &mut Twin, answer: Option<&[f64]>) -> (Shot, Option<TrialEnd>)
     twin.advance(answer)
 }
 
-/// What the autopilot's AHRS reports of the vehicle's state.
-pub fn vehicle_of(state: &VehicleState, rate: &PoseRate) -> Vehicle {
-    Vehicle {
-        heading: state.pose.psi,
-        yaw_rate: state.velocity.r,
-        ground_speed: rate.x.hypot(rate.y),
-    }
-}
-
-/// The twin behind the stand-in ArduSub (`--autopilot`): its horizontal thrusters are the
-/// autopilot's motors 1..4, driven at every sub-step of the plant by the autopilot's attitude loop
-/// from the pilot input it holds (the newest MANUAL_CONTROL).
+/// The twin behind its stand-in ArduSub piloted over MAVLink (`--autopilot`): its horizontal
+/// thrusters are the autopilot's motors 1..4, driven at every sub-step of the plant by the
+/// autopilot's attitude loop from the pilot input it holds (the newest MANUAL_CONTROL, which the
+/// shell hands to [`Piloted::autopilot_mut`]).
 pub struct Piloted {
     pub twin: Twin,
-    pub autopilot: ArduSub,
 }
 
 impl Piloted {
-    /// Refuses a scenario whose thruster layout is not the vectored frame's.
-    pub fn new(twin: Twin, autopilot: ArduSub) -> Result<Piloted, String> {
-        let m = twin.plant().layout().matrix();
-        let columns: Vec<[f64; 3]> = (0..m.ncols())
-            .map(|j| [m[(0, j)], m[(1, j)], m[(2, j)]])
-            .collect();
-        mixer::check_layout(&columns)?;
-        Ok(Piloted { twin, autopilot })
+    /// Refuses a twin without an autopilot (its config has no `[autopilot]`).
+    pub fn new(twin: Twin) -> Result<Piloted, String> {
+        if twin.autopilot().is_none() {
+            return Err("the twin's config has no [autopilot]".into());
+        }
+        Ok(Piloted { twin })
     }
 
-    /// The next frame, the period driven by `autopilot`.
-    pub fn step(twin: &mut Twin, autopilot: &mut ArduSub) -> (Shot, Option<TrialEnd>) {
-        twin.advance_driven(&mut |h, state, rate, out| {
-            let pwm = autopilot.control(h, vehicle_of(state, rate));
-            for (o, p) in out.iter_mut().zip(&pwm[..mixer::HORIZONTAL]) {
-                *o = mixer::setpoint(*p);
-            }
-        })
+    pub fn autopilot(&self) -> &ArduSub {
+        self.twin.autopilot().expect("checked by new").core()
+    }
+
+    pub fn autopilot_mut(&mut self) -> &mut ArduSub {
+        self.twin
+            .autopilot_mut()
+            .expect("checked by new")
+            .core_mut()
+    }
+
+    /// The next frame, the period driven by the autopilot.
+    pub fn step(twin: &mut Twin) -> (Shot, Option<TrialEnd>) {
+        twin.advance_piloted()
     }
 
     /// Whether a lockstep tag is the current frame's: its time in ms, as the stack's side sends it
@@ -118,9 +112,8 @@ impl Plant for Piloted {
                 ended,
             };
         }
-        let autopilot = &mut self.autopilot;
         let (step, passed) = advance_to_visible(&mut self.twin, None, &mut ended, &mut |t, _| {
-            Piloted::step(t, autopilot)
+            Piloted::step(t)
         });
         Advanced {
             step,
@@ -131,9 +124,8 @@ impl Plant for Piloted {
 
     fn advance(&mut self, answer: Option<&[f64]>) -> Advanced<Self> {
         let mut ended = Vec::new();
-        let autopilot = &mut self.autopilot;
         let (step, passed) = advance_to_visible(&mut self.twin, answer, &mut ended, &mut |t, _| {
-            Piloted::step(t, autopilot)
+            Piloted::step(t)
         });
         Advanced {
             step,
@@ -143,10 +135,7 @@ impl Plant for Piloted {
     }
 
     fn finish(&mut self) -> Vec<TrialEnd> {
-        Piloted::step(&mut self.twin, &mut self.autopilot)
-            .1
-            .into_iter()
-            .collect()
+        Piloted::step(&mut self.twin).1.into_iter().collect()
     }
 }
 
@@ -484,20 +473,23 @@ mod tests {
 
     /// Lockstep behind the autopilot: a frame is answered by the tag carrying its time in ms; the
     /// period is driven by the autopilot's motors (forward stick: the vehicle moves forward; the
-    /// same twin disarmed stays still); a scenario without the vectored layout is refused.
+    /// same twin disarmed stays still); a scenario without the vectored layout is refused, and a
+    /// twin without an autopilot is not piloted.
     #[test]
     fn lockstep_behind_the_autopilot_steps_on_the_frames_tag() {
-        use crate::ardusub::{ArduSub, StepTag};
+        use crate::ardusub::StepTag;
+        use crate::twin::TwinError;
         let t0 = Instant::now();
         let mut params = TwinParams::ideal();
         params.trials.duration_s = 20.0;
+        params.autopilot = Some(config::AutopilotParams::default());
         let run = |arm: bool| {
-            let twin = Twin::new(&bluerov2(), &params, 5, false).unwrap();
-            let mut autopilot = ArduSub::new(&params.autopilot, Vec::new(), t0);
+            let mut twin = Twin::new(&bluerov2(), &params, 5, false).unwrap();
             if arm {
-                autopilot.arm_for_test(t0, 1000);
+                let core = twin.autopilot_mut().unwrap().core_mut();
+                core.arm_for_test(t0, 1000);
             }
-            let piloted = Piloted::new(twin, autopilot).unwrap();
+            let piloted = Piloted::new(twin).unwrap();
             let (mut ls, first) = Lockstep::start(piloted, Limits::new(100 * MS, 2000 * MS), 0, t0);
             let mut shot = published(first);
             for _ in 0..10 {
@@ -518,8 +510,16 @@ mod tests {
         let (moving, still) = (run(true), run(false));
         assert!(moving > 0.1, "forward at {moving} m/s");
         assert_eq!(still, 0.0);
-        let default = Twin::new(&Scenario::default(), &params, 5, false).unwrap();
-        assert!(Piloted::new(default, ArduSub::new(&params.autopilot, Vec::new(), t0)).is_err());
+        let default = Scenario {
+            pilot: bluerov2().pilot,
+            ..Scenario::default()
+        };
+        assert!(matches!(
+            Twin::new(&default, &params, 5, false),
+            Err(TwinError::Autopilot(e)) if e.contains("vectored")
+        ));
+        let plain = Twin::new(&Scenario::default(), &TwinParams::ideal(), 5, false).unwrap();
+        assert!(Piloted::new(plain).is_err());
     }
 
     #[test]

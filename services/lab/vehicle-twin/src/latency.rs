@@ -1,9 +1,9 @@
 //! Camera-to-thruster latency as the hardware sees it: from the moment the twin publishes a frame to
 //! the moment the setpoints answering it reach the twin's thrusters. Everything the vehicle does in
 //! between is inside: the camera's frame source, perception, the behaviours and the surge rule, the
-//! allocator and its thruster sink, and every cross-process wake-up. Plain times in, samples out;
-//! `vehicle-twin --latency FILE` writes them (`records::latency`), `mesh-bench vehicle` summarises
-//! them.
+//! allocator, the thruster driver and its thruster sink, and every cross-process wake-up. Plain
+//! times in, samples out; `vehicle-twin --latency FILE` writes them (`records::latency`),
+//! `mesh-bench vehicle` summarises them.
 
 use crate::Shot;
 use records::latency::Sample;

@@ -15,7 +15,7 @@
 //!
 //! The `vehicle-twin` binary publishes the twin's frames on `cabletrack/twin/frame` and takes the
 //! setpoints from `cabletrack/twin/thrusters` (`adapters::twin`); the vehicle endpoint's camera and
-//! allocator reach them through their frame source and thruster sink.
+//! thruster driver reach them through their frame source and thruster sink.
 
 pub mod ardusub;
 pub mod driver;
@@ -24,4 +24,4 @@ pub mod plant;
 pub mod twin;
 
 pub use plant::{ThrusterModel, TwinPlant};
-pub use twin::{Shot, TrialEnd, Twin, TwinEye};
+pub use twin::{Autopilot, Shot, TrialEnd, Twin, TwinError, TwinEye};

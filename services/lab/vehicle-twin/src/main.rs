@@ -335,7 +335,6 @@ fn main() -> ExitCode {
             let setup = autopilot::Setup {
                 url,
                 faults: args.fault.clone(),
-                params: params.autopilot.clone(),
                 lockstep: args.lockstep.then_some(limits),
                 period,
                 trials: args.trials,

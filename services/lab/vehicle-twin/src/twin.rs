@@ -20,24 +20,73 @@
 //! thrusters hold the last setpoints, until the watchdog stops them after `watchdog_s` of twin time
 //! without any.
 //!
+//! **The autopilot.** With `twin.toml [autopilot]` the thrusters are a stand-in ArduSub's motors
+//! ([`crate::ardusub`]), driven by its attitude loop at every sub-step of the plant from the pilot
+//! input it holds: the vehicle behind its autopilot, as the stack meets a BlueROV2. The pilot is
+//! the stack either way. On the twin's thruster topic ([`Twin::advance`]) the twin does what a
+//! MAVLink companion does: it takes off in `scenario.toml [pilot]`'s mode and turns the setpoints
+//! answering a frame into the pilot's sticks (`model::pilot`, with `[pilot]`'s fractions, as the
+//! `ardusub` thruster sink does over MAVLink); a failsafe stop is neutral sticks,
+//! and the autopilot's own pilot-input failsafe replaces the thrusters' watchdog. Over MAVLink
+//! (`vehicle-twin --autopilot URL`, [`Twin::advance_piloted`]) the stack's side sends the sticks
+//! and commands itself. The plant is the vehicle's own model (`scenario.toml [model]`), at full
+//! thrust.
+//!
 //! **Trials.** A trial lasts `duration_s` of twin time (its last step has status `TimeLimit`) or
 //! ends when the cable leaves the image (`Lost`). The answer to a trial's last frame is not applied:
 //! the vehicle is repositioned (a random pose with the cable in view, velocities and thrust 0) and
 //! the next trial's first frame (step 0) is taken.
 
+use crate::ardusub::{self, ArduSub, mixer};
 use crate::plant::TwinPlant;
 use adapters::FrameMeta;
-use config::{MAX_THRUSTERS, ResetParams, Scenario, TwinParams, derive_seed};
+use config::{MAX_THRUSTERS, PilotParams, ResetParams, Scenario, TwinParams, derive_seed};
 use messages::{CableObservationData, StepStatus};
 use model::{Cable, Camera, PoseRate, VehicleState};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use std::collections::VecDeque;
+use std::time::{Duration, Instant};
 use vision::{Renderer, VisionError};
 
-/// An autopilot driving the thrusters within a period: given a sub-step's length and the vehicle's
-/// state and rate, it sets the setpoints for that sub-step.
-pub type Drive<'a> = dyn FnMut(f64, &VehicleState, &PoseRate, &mut [f64]) + 'a;
+/// Why a twin cannot be built.
+#[derive(Debug, thiserror::Error)]
+pub enum TwinError {
+    #[error(transparent)]
+    Vision(#[from] VisionError),
+    /// The scenario, the twin's config and the autopilot do not fit together.
+    #[error("the twin's autopilot: {0}")]
+    Autopilot(String),
+}
+
+/// The vehicle's autopilot and how the twin's thruster topic pilots it.
+pub struct Autopilot {
+    core: ArduSub,
+    pilot: PilotParams,
+    /// The twin time's origin as the autopilot's clock.
+    epoch: Instant,
+    /// Whether the twin has taken off itself (its thruster topic pilots the autopilot).
+    piloting: bool,
+}
+
+impl Autopilot {
+    pub fn core(&self) -> &ArduSub {
+        &self.core
+    }
+
+    pub fn core_mut(&mut self) -> &mut ArduSub {
+        &mut self.core
+    }
+
+    pub fn pilot(&self) -> &PilotParams {
+        &self.pilot
+    }
+
+    /// The autopilot's clock at twin time `time_s`.
+    fn at(&self, time_s: f64) -> Instant {
+        self.epoch + Duration::from_secs_f64(time_s.max(0.0))
+    }
+}
 
 /// One frame's answer on its way to the thrusters (`None`: no answer came).
 type InFlight = Option<[f64; MAX_THRUSTERS]>;
@@ -234,6 +283,7 @@ pub struct Twin {
     mark: u32,
     trial_dropped: u32,
     dropped: u64,
+    autopilot: Option<Autopilot>,
 }
 
 impl Twin {
@@ -244,10 +294,57 @@ impl Twin {
         twin: &TwinParams,
         seed: u64,
         images: bool,
-    ) -> Result<Self, VisionError> {
+    ) -> Result<Self, TwinError> {
         let dt = scenario.timing.sample_time_s;
         let plant = TwinPlant::new(scenario, twin);
         let n = plant.layout().len();
+        let autopilot = match (&twin.autopilot, &scenario.pilot) {
+            (None, None) => None,
+            (None, Some(_)) => {
+                return Err(TwinError::Autopilot(
+                    "the scenario pilots an autopilot ([pilot]) but the twin's config has no \
+                     [autopilot]"
+                        .into(),
+                ));
+            }
+            (Some(_), None) => {
+                return Err(TwinError::Autopilot(
+                    "the twin's config has an [autopilot] but the scenario does not say how the \
+                     stack pilots it ([pilot])"
+                        .into(),
+                ));
+            }
+            (Some(params), Some(pilot)) => {
+                let params = params
+                    .flown_by(pilot, "autopilot")
+                    .map_err(|e| TwinError::Autopilot(e.to_string()))?;
+                let m = plant.layout().matrix();
+                let columns: Vec<[f64; 3]> = (0..m.ncols())
+                    .map(|j| [m[(0, j)], m[(1, j)], m[(2, j)]])
+                    .collect();
+                mixer::check_layout(&columns).map_err(|e| {
+                    TwinError::Autopilot(format!("needs the BlueROV2's vectored layout: {e}"))
+                })?;
+                let epoch = Instant::now();
+                let core = ArduSub::new(&params, Vec::new(), epoch);
+                let gain = core.gain();
+                let f = &pilot.fraction;
+                if f.surge.max(f.sway).max(f.yaw) > gain {
+                    tracing::warn!(
+                        gain,
+                        fractions = ?f,
+                        "a [pilot] fraction is above the joystick gain: the stack's full commands \
+                         are clipped to the full stick"
+                    );
+                }
+                Some(Autopilot {
+                    core,
+                    pilot: pilot.clone(),
+                    epoch,
+                    piloting: false,
+                })
+            }
+        };
         Ok(Twin {
             eye: TwinEye::new(scenario, twin, seed, images)?,
             plant,
@@ -266,7 +363,17 @@ impl Twin {
             mark: 0,
             trial_dropped: 0,
             dropped: 0,
+            autopilot,
         })
+    }
+
+    /// The vehicle's autopilot, when the thrusters are its motors.
+    pub fn autopilot(&self) -> Option<&Autopilot> {
+        self.autopilot.as_ref()
+    }
+
+    pub fn autopilot_mut(&mut self) -> Option<&mut Autopilot> {
+        self.autopilot.as_mut()
     }
 
     pub fn plant(&self) -> &TwinPlant {
@@ -306,9 +413,16 @@ impl Twin {
     }
 
     /// The vehicle side stopped the thrusters (a failsafe stop, not an answer to a frame): they hold
-    /// 0 from now on, until setpoints come again.
+    /// 0 from now on, until setpoints come again. Behind an autopilot: neutral sticks.
     pub fn stop_thrusters(&mut self) {
-        self.held.iter_mut().for_each(|h| *h = 0.0);
+        let time_s = self.current.map_or(0.0, |s| s.time_s);
+        match &mut self.autopilot {
+            Some(a) => {
+                let now = a.at(time_s);
+                a.core.pilot(now, model::pilot::Axes::NEUTRAL);
+            }
+            None => self.held.iter_mut().for_each(|h| *h = 0.0),
+        }
     }
 
     /// Takes the first trial's first frame (again, if called twice: it restarts nothing).
@@ -323,6 +437,13 @@ impl Twin {
     /// period; after a trial's last frame the next trial starts instead. Returns the new frame and,
     /// when a trial just closed, how it ended.
     pub fn advance(&mut self, answer: Option<&[f64]>) -> (Shot, Option<TrialEnd>) {
+        if self.autopilot.is_some() {
+            return self.next(|twin| {
+                let arrived = twin.arrive(answer);
+                twin.pilot_with(arrived);
+                twin.fly_period();
+            });
+        }
         self.next(|twin| {
             match twin.arrive(answer) {
                 Some(sp) => {
@@ -338,21 +459,59 @@ impl Twin {
         })
     }
 
-    /// The next frame, the thrusters driven within the period by an autopilot instead of by the
-    /// answer: every sub-step of the plant (`max_substep_s`), `drive` is given the sub-step's length
-    /// and the vehicle's state and rate, and sets the setpoints for it (the autopilot's attitude
-    /// loop). The trials run as with [`Twin::advance`].
-    pub fn advance_driven(&mut self, drive: &mut Drive) -> (Shot, Option<TrialEnd>) {
-        self.next(|twin| {
-            let n = (twin.dt / twin.plant.max_substep_s()).ceil().max(1.0);
-            let h = twin.dt / n;
-            for _ in 0..n as usize {
-                let (state, rate) = (*twin.plant.state(), twin.plant.pose_rate());
-                drive(h, &state, &rate, &mut twin.held);
-                twin.plant.step(&twin.held, h);
+    /// The next frame, the period driven by the autopilot from the pilot input it holds (the
+    /// stack's MANUAL_CONTROL over MAVLink, received by the caller through
+    /// [`Twin::autopilot_mut`]); the trials run as with [`Twin::advance`]. Without an autopilot the
+    /// thrusters hold their setpoints.
+    pub fn advance_piloted(&mut self) -> (Shot, Option<TrialEnd>) {
+        if self.autopilot.is_none() {
+            return self.advance(None);
+        }
+        self.next(|twin| twin.fly_period())
+    }
+
+    /// The twin's thruster topic as the autopilot's pilot: the setpoints that reached the
+    /// thrusters become the sticks (at the frame's time), the autopilot taking off first; then the
+    /// autopilot keeps its time (its pilot-input failsafe).
+    fn pilot_with(&mut self, arrived: InFlight) {
+        let time_s = self.current.map_or(0.0, |s| s.time_s);
+        let n = self.held.len();
+        let layout = self.plant.layout();
+        let a = self.autopilot.as_mut().expect("piloted");
+        let now = a.at(time_s);
+        if let Some(sp) = arrived {
+            if !a.core.armed() {
+                // Taking off (or again, after the autopilot's failsafe disarmed it), as a
+                // MAVLink companion does before it sends sticks.
+                if let Err(e) = a.core.fly(a.pilot.mode.into())
+                    && !a.piloting
+                {
+                    tracing::warn!("the twin's pilot cannot take off: {e}");
+                }
+                a.piloting = true;
             }
-            twin.since_answer_s = 0.0;
-        })
+            let axes = model::pilot::setpoint_axes(layout, &sp[..n], &a.pilot, a.core.gain());
+            a.core.pilot(now, axes);
+        }
+        a.core.on_time(now);
+        // Nobody listens on the twin's thruster topic for the autopilot's messages.
+        drop(a.core.take_out(now));
+    }
+
+    /// One period with the autopilot driving the thrusters at every sub-step of the plant.
+    fn fly_period(&mut self) {
+        let n = (self.dt / self.plant.max_substep_s()).ceil().max(1.0);
+        let h = self.dt / n;
+        let a = self.autopilot.as_mut().expect("piloted");
+        for _ in 0..n as usize {
+            let v = ardusub::vehicle_of(self.plant.state(), &self.plant.pose_rate());
+            let pwm = a.core.control(h, v);
+            for (o, p) in self.held.iter_mut().zip(&pwm[..mixer::HORIZONTAL]) {
+                *o = mixer::setpoint(*p);
+            }
+            self.plant.step(&self.held, h);
+        }
+        self.since_answer_s = 0.0;
     }
 
     /// Takes the next frame after `actuate` has integrated one period (not called after a trial's
@@ -444,6 +603,12 @@ impl Twin {
             ..Default::default()
         });
         self.held.iter_mut().for_each(|h| *h = 0.0);
+        if let Some(a) = &mut self.autopilot {
+            // The operator puts the vehicle back; the pilot's sticks stay as they were (a
+            // MAVLink companion keeps sending its last ones until the next step's).
+            let v = ardusub::vehicle_of(self.plant.state(), &self.plant.pose_rate());
+            a.core.repositioned(v);
+        }
         // What was on its way answered the last trial's frames.
         self.in_flight.clear();
         self.since_answer_s = 0.0;
@@ -623,7 +788,11 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         let (now, late) = (thrusts(None), thrusts(Some(2)));
-        assert_eq!(TwinParams::default().latency.periods(), 0, "off by default");
+        assert_eq!(
+            TwinParams::ideal().latency.periods(),
+            0,
+            "off in the ideal twin"
+        );
         for k in 0..25 {
             let (step, thrust) = late[k];
             if step == 0 {
@@ -803,5 +972,158 @@ mod tests {
         };
         assert_eq!(run(4), run(4));
         assert_ne!(run(4), run(5));
+    }
+
+    fn bluerov2() -> (Scenario, TwinParams) {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../config/bluerov2");
+        (
+            config::load(&dir.join("scenario.toml")).unwrap(),
+            config::load(&dir.join("twin.toml")).unwrap(),
+        )
+    }
+
+    /// The scenario's yaw model is the stand-in's rate loop on the vehicle: from rest in ALT_HOLD,
+    /// a yaw command u held, the yaw rate settles at u x r_max, and a first order fitted by least
+    /// squares over the first second has the scenario's time constant (within 10%).
+    #[test]
+    fn the_scenarios_yaw_rate_loop_is_the_stand_ins() {
+        let (scenario, twin) = bluerov2();
+        let pilot = scenario.pilot.clone().unwrap();
+        let tau = pilot.yaw_rate_time_constant_s.unwrap();
+        let params = twin
+            .autopilot
+            .unwrap()
+            .flown_by(&pilot, "autopilot")
+            .unwrap();
+        for u in [0.2, 0.5, 1.0] {
+            let t0 = Instant::now();
+            let mut core = ArduSub::new(&params, Vec::new(), t0);
+            core.fly(pilot.mode.into()).unwrap();
+            let command = model::Forces {
+                yaw: u,
+                ..Default::default()
+            };
+            core.pilot(t0, model::pilot::axes(&command, &pilot, core.gain()));
+            let mut plant = TwinPlant::new(&scenario, &TwinParams::ideal());
+            let (h, mut setpoints, mut rate) = (0.01, [0.0; 4], Vec::new());
+            for k in 1..=300 {
+                let v = ardusub::vehicle_of(plant.state(), &plant.pose_rate());
+                let pwm = core.control(h, v);
+                for (s, p) in setpoints.iter_mut().zip(&pwm[..4]) {
+                    *s = mixer::setpoint(*p);
+                }
+                plant.step(&setpoints, h);
+                rate.push((k as f64 * h, plant.state().velocity.r));
+            }
+            let settled = rate[250..].iter().map(|r| r.1).sum::<f64>() / 50.0;
+            let want = u * pilot.yaw_rate_max();
+            assert!(
+                (settled - want).abs() < 0.03 * want,
+                "u = {u}: {settled} rad/s against {want}"
+            );
+            let misfit = |tau: f64| -> f64 {
+                rate[..100]
+                    .iter()
+                    .map(|&(t, r)| (r - settled * (1.0 - (-t / tau).exp())).powi(2))
+                    .sum()
+            };
+            let fitted = (1..=500)
+                .map(|i| i as f64 * 0.001)
+                .min_by(|a, b| misfit(*a).total_cmp(&misfit(*b)))
+                .unwrap();
+            assert!(
+                (fitted - tau).abs() < 0.1 * tau,
+                "u = {u}: fitted {fitted} s against the scenario's {tau} s"
+            );
+        }
+    }
+
+    /// The same stack's commands reach the same vehicle whichever way they come: as setpoints on
+    /// the twin's thruster topic (the twin turns them into sticks and takes off itself) or as a
+    /// MAVLink companion sends them (the mode and arming commands, then MANUAL_CONTROL with the same
+    /// conversion, received as frames from the ground station): the same motor outputs at every
+    /// sub-step and the same frames, step for step.
+    #[test]
+    fn the_thruster_topic_and_mavlink_fly_the_same_vehicle() {
+        use mavlink::Message;
+        use mavlink::dialects::ardupilotmega::{
+            COMMAND_LONG_DATA, MANUAL_CONTROL_DATA, MavCmd, MavMessage,
+        };
+        let (scenario, twin) = bluerov2();
+        let pilot = scenario.pilot.clone().unwrap();
+        let frame = |msg: &MavMessage| ardusub::wire::Frame {
+            version: mavlink::MavlinkVersion::V2,
+            sequence: 0,
+            system_id: 255,
+            component_id: 190,
+            message_id: msg.message_id(),
+            payload: ardusub::wire::payload(msg),
+        };
+        let command = |command, p1: f32, p2: f32| {
+            MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+                param1: p1,
+                param2: p2,
+                command,
+                target_system: 1,
+                target_component: 1,
+                ..Default::default()
+            })
+        };
+        let mut topic = Twin::new(&scenario, &twin, 7, false).unwrap();
+        let mut wire = Twin::new(&scenario, &twin, 7, false).unwrap();
+        let (mut a, mut b) = (topic.start(), wire.start());
+        assert_eq!(a, b);
+        let layout = model::ThrusterLayout::new(&scenario.thrusters);
+        let mut moved = 0.0f64;
+        for k in 0..150 {
+            // Some setpoints (the allocator's would do): every DOF in turn and together.
+            let t = k as f64 * 0.2;
+            let setpoints = [
+                0.6 * (0.7 * t).sin(),
+                -0.4 * (0.3 * t).cos(),
+                0.5 * (0.5 * t).sin(),
+                0.3,
+            ];
+            let answer = (!a.status.is_terminal()).then_some(&setpoints[..]);
+            let (next_a, _) = topic.advance(answer);
+            let ap = wire.autopilot_mut().unwrap();
+            let now = ap.at(b.time_s);
+            let core = ap.core_mut();
+            if k == 0 {
+                let mode = ardusub::Mode::from(pilot.mode).number() as f32;
+                core.receive(
+                    now,
+                    &frame(&command(MavCmd::MAV_CMD_DO_SET_MODE, 1.0, mode)),
+                );
+                core.receive(
+                    now,
+                    &frame(&command(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, 1.0, 0.0)),
+                );
+            }
+            if answer.is_some() {
+                let axes = model::pilot::setpoint_axes(&layout, &setpoints, &pilot, core.gain());
+                let msg = MavMessage::MANUAL_CONTROL(MANUAL_CONTROL_DATA {
+                    x: axes.x,
+                    y: axes.y,
+                    z: axes.z,
+                    r: axes.r,
+                    target: 1,
+                    ..Default::default()
+                });
+                core.receive(now, &frame(&msg));
+            }
+            let (next_b, _) = wire.advance_piloted();
+            let (ca, cb) = (
+                topic.autopilot().unwrap().core(),
+                wire.autopilot().unwrap().core(),
+            );
+            assert!(ca.armed() && cb.armed() && ca.mode() == cb.mode());
+            assert_eq!(ca.sticks(), cb.sticks(), "step {k}");
+            assert_eq!(ca.pwm(), cb.pwm(), "step {k}");
+            assert_eq!(next_a, next_b, "step {k}");
+            moved = moved.max(next_a.state.velocity.v.abs());
+            (a, b) = (next_a, next_b);
+        }
+        assert!(moved > 0.05, "the sticks moved the vehicle: {moved} m/s");
     }
 }

@@ -18,8 +18,9 @@ from pymavlink import mavutil  # noqa: E402
 mavlink = mavutil.mavlink
 PORT = int(sys.argv[1])
 WHAT = sys.argv[2]
-# joystick.cpp at the default gain 0.5: 1000 -> 0.4 x 0.5 x 1000 = 200 us from 1500.
-STEP = 200
+# joystick.cpp at the default gain 0.5: 1000 -> 0.4 x 0.5 x 1000 = 200 us from 1500, half the
+# channel: thrust 0.5 on each motor the axis drives (yaw in MANUAL further times ACRO_YAW_P / 4.5).
+THRUST = 0.5
 # The vectored frame's motor signs per axis (AP_Motors6DOF.cpp, SUB_FRAME_VECTORED).
 AXES = {
     "forward": ((1000, 0, 500, 0), [-1, -1, 1, 1, 0, 0]),
@@ -97,17 +98,18 @@ def param(m, name):
     return v.param_value
 
 
-def servo_signs_become(m, signs, pilot, timeout=3.0):
+def servo_signs_become(m, signs, pilot, thrust=THRUST, timeout=3.0):
+    # AP_Motors6DOF's PWM: 1500 + thrust x 400, truncated to whole us.
+    want = [int(1500 + sign * thrust * 400) for sign in signs]
+
     def matches(s):
         pwm = [s.servo1_raw, s.servo2_raw, s.servo3_raw, s.servo4_raw, s.servo5_raw, s.servo6_raw]
-        return all(
-            (p - 1500 == 0) if want == 0 else (p - 1500 == want * STEP) for p, want in zip(pwm, signs)
-        )
+        return pwm == want
 
     s = wait(m, "SERVO_OUTPUT_RAW", timeout, matches, pilot)
     if s is None:
         last = wait(m, "SERVO_OUTPUT_RAW", 1, while_waiting=pilot)
-        fail(f"SERVO_OUTPUT_RAW never showed {signs} x {STEP}: last {last}")
+        fail(f"SERVO_OUTPUT_RAW never showed {want} ({signs} x {thrust}): last {last}")
 
 
 def arm_in_manual(m, pilot):
@@ -145,12 +147,15 @@ def full():
     timeout = param(m, "FS_PILOT_TIMEOUT")
     if gcs != 255 or param(m, "FS_PILOT_INPUT") != 2 or param(m, "JS_GAIN_DEFAULT") != 0.5:
         fail("unexpected parameters")
-    print(f"MAV_GCS_SYSID {gcs}, FS_PILOT_TIMEOUT {timeout}", flush=True)
+    # MANUAL scales the yaw stick by ACRO_YAW_P against its default 4.5 (mode_manual.cpp).
+    yaw_p = param(m, "ACRO_YAW_P")
+    print(f"MAV_GCS_SYSID {gcs}, FS_PILOT_TIMEOUT {timeout}, ACRO_YAW_P {yaw_p}", flush=True)
     arm_in_manual(m, pilot)
     for axis, (axes, signs) in AXES.items():
         pilot.axes = axes
-        servo_signs_become(m, signs, pilot)
-        print(f"{axis}: motors {signs}", flush=True)
+        thrust = THRUST * yaw_p / 4.5 if axis == "yaw" else THRUST
+        servo_signs_become(m, signs, pilot, thrust)
+        print(f"{axis}: motors {signs} x {thrust:.3f}", flush=True)
     # A system that is not a ground station: its MANUAL_CONTROL changes nothing.
     pilot.axes = (0, 0, 500, 0)
     servo_signs_become(m, [0] * 6, pilot)

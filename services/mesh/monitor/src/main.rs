@@ -1,6 +1,6 @@
 //! `monitor`: prints each episode's returns as the mesh learns, and writes the run's record (after
 //! every episode, so a restarted monitor carries on from it). Reports whose stamp is refused
-//! (`runtime::lockstep::Screen`) or that cannot be true (`monitor::check`) are not recorded.
+//! (`runtime::screen::Screen`) or that cannot be true (`monitor::check`) are not recorded.
 
 use anyhow::Context;
 use clap::Parser;
@@ -8,7 +8,7 @@ use config::Dof;
 use messages::topics;
 use monitor::Episodes;
 use records::{RunRecord, TracePoint};
-use runtime::lockstep::{Screen, ScreenLimits, Verdict};
+use runtime::screen::{Screen, ScreenLimits, Verdict};
 use runtime::{CommonArgs, Flow, Tally, Timer};
 use std::io::Write;
 use std::path::PathBuf;
@@ -78,7 +78,7 @@ fn main() -> ExitCode {
         // trial, so its age says little, and a producer whose clock is behind (a camera restarted
         // with its time base stepped back) cannot show its pace before its next trial; timed,
         // every report of that epoch would be refused. A forged `seq` in the live epoch is still
-        // refused: the jump is bounded (`lockstep::MAX_UNTIMED_JUMP` steps, many trials).
+        // refused: the jump is bounded (`screen::MAX_UNTIMED_JUMP` steps, many trials).
         let limits = ScreenLimits::control(rt.scenario().timing.sample_time_s);
         let untimed = |s: &messages::Stamp| messages::Stamp { clock_ns: 0, ..*s };
         let floors = inboxes
@@ -100,25 +100,61 @@ fn main() -> ExitCode {
             "episode | steps | lost | eval |  yaw return | sway return | yaw K              | sway K"
         )?;
         let sample_time = rt.scenario().timing.sample_time_s;
-        let write = |episodes: &Episodes| -> anyhow::Result<()> {
+        // The run record replaces itself whole after every episode (`durable::replace`), so a
+        // SIGKILL or a power cut leaves the last episode's record, never a torn one. A write that
+        // fails (a full disk) is said once, and the run goes on: the next episode tries again.
+        let mut outage = durable::Outage::default();
+        let mut write = |episodes: &Episodes| -> anyhow::Result<()> {
             let Some(path) = &args.json else {
                 return Ok(());
             };
             let record = episodes.record(start.elapsed().as_secs_f64());
-            let tmp = path.with_extension("json.tmp");
-            std::fs::write(&tmp, serde_json::to_string(&record)?)
-                .with_context(|| format!("writing {}", tmp.display()))?;
-            std::fs::rename(&tmp, path)
-                .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
+            let json = serde_json::to_vec(&record)?;
+            match durable::replace(path, &json) {
+                Ok(()) => {
+                    if let Some(failed) = outage.succeeded() {
+                        tracing::info!(path = %path.display(), failed, "the run record is written again");
+                    }
+                }
+                Err(e) => {
+                    if outage.failed() {
+                        let full = if e.is_disk_full() {
+                            " (the disk is full)"
+                        } else {
+                            ""
+                        };
+                        tracing::error!(
+                            "the run record is not written{full}: {:#}; the run goes on, each episode tries again, {} keeps the last record written",
+                            anyhow::Error::from(e),
+                            path.display()
+                        );
+                    }
+                }
+            }
             Ok(())
         };
+        // Its inboxes are open: where it is an observer (the sim mesh, whose loop can run all its
+        // episodes in less time than a process takes to start), the loop starts now, so no report
+        // goes by before it listens.
+        rt.ready();
+        let mut trace_failed = false;
         rt.serve(&listeners, Timer::Timeout(Duration::from_secs(1)), |_| {
             if let (Some(observations), Some(out)) = (&trace_in, &mut trace_out) {
+                let mut written = Ok(());
                 for o in observations.drain()? {
                     let line = TracePoint::new(&o, sample_time);
-                    serde_json::to_writer(&mut *out, &line)?;
-                    out.write_all(b"\n")?;
+                    written = written
+                        .and_then(|()| serde_json::to_writer(&mut *out, &line).map_err(std::io::Error::from))
+                        .and_then(|()| out.write_all(b"\n"));
                 }
+                if let Err(e) = written {
+                    // A full disk ends the trace, not the run (nor the run record).
+                    tracing::error!(path = ?args.trace, "the trace stops here: {e}");
+                    trace_failed = true;
+                }
+            }
+            if trace_failed {
+                trace_out = None;
             }
             for (((dof, inbox), screen), floor) in inboxes.iter().zip(&mut screens).zip(&floors) {
                 for stats in inbox.drain()? {
@@ -156,8 +192,10 @@ fn main() -> ExitCode {
             }
             Ok(Flow::Continue)
         })?;
-        if let Some(out) = &mut trace_out {
-            out.flush()?;
+        if let Some(out) = &mut trace_out
+            && let Err(e) = out.flush()
+        {
+            tracing::error!(path = ?args.trace, "the trace's end is not written: {e}");
         }
         let record = episodes.record(start.elapsed().as_secs_f64());
         let gaps = episodes.gaps();

@@ -10,6 +10,9 @@
 //!   holes counted.
 //! - [`writer`]: the file: chunked, zstd, flushed each second, rotated by size into parts
 //!   ([`part_path`]), closed with its summary and index; the live view on the same channels.
+//! - [`seal`]: the file under the writer, readable by any MCAP reader at every moment: it always
+//!   ends in a footer, new chunks are committed behind it and shown by one byte; a failed commit
+//!   (a full disk) stops the recording, not the recorder.
 //! - [`figure`]: a dive at a glance (a frame with the cable found, the estimate, the commands and
 //!   the thrusters against time), drawn from its record with `plot`.
 //! - [`read`]: every message back, from every part, a part cut by a SIGKILL up to its last
@@ -24,6 +27,7 @@ pub mod figure;
 pub mod image;
 pub mod keep;
 pub mod read;
+pub mod seal;
 pub mod writer;
 
 pub use channels::{Channel, CommandDof, Drain, Key, Recorded, taps};

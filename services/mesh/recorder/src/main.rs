@@ -87,6 +87,10 @@ impl Taps {
     }
 }
 
+fn flush_every(args: &Args) -> Duration {
+    Duration::from_millis(args.flush_ms.max(1))
+}
+
 fn record(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     let taps = Taps::open(rt)?;
     // A step's thruster setpoints (its last message) wake it, and the supervisor's events, so a
@@ -116,7 +120,22 @@ fn record(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     opts.frame_every = args.frame_every;
     opts.rotate_bytes = args.rotate_mb.saturating_mul(1 << 20);
     opts.chunk_bytes = args.chunk_kb.saturating_mul(1 << 10);
-    let mut rec = FlightRecorder::create(opts, metadata)?;
+    let mut rec = match FlightRecorder::create(opts, metadata) {
+        Ok(rec) => rec,
+        // A recorder that exited would be restarted, again and again, and take the mesh down with
+        // it: on a full disk it waits without recording instead.
+        Err(e) if e.is_disk_full() => {
+            tracing::error!(
+                "{e}: the disk is full; the recorder waits without recording, the vehicle is not affected"
+            );
+            rt.ready();
+            rt.serve(&[&event], Timer::Timeout(flush_every(args)), |_| {
+                Ok(Flow::Continue)
+            })?;
+            return Ok(());
+        }
+        Err(e) => return Err(e.into()),
+    };
     if let Some(addr) = args.live {
         let port = rec.serve_live(addr)?;
         if !addr.ip().is_loopback() {
@@ -134,7 +153,7 @@ fn record(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
         "recording every topic of the endpoint"
     );
     rt.ready();
-    let flush_every = Duration::from_millis(args.flush_ms.max(1));
+    let flush_every = flush_every(args);
     let mut last_flush = Instant::now();
     let mut last_progress = Instant::now();
     // The timeout flushes and publishes progress while no step runs.
@@ -146,8 +165,11 @@ fn record(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
         taps.drain(&mut rec)?;
         if last_flush.elapsed() >= flush_every {
             last_flush = Instant::now();
-            rec.flush()?;
-            rec.rotate_if_due()?;
+            // A failed write (a full disk) stops the recording, not the recorder: said once,
+            // here; the vehicle is not affected, and the live view and the status go on.
+            if let Err(e) = rec.flush().and_then(|()| rec.rotate_if_due().map(drop)) {
+                tracing::error!("{e}");
+            }
             let status = rec.status();
             status_out.send(status)?;
             if last_progress.elapsed() >= Duration::from_secs(60) {
@@ -165,7 +187,15 @@ fn record(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     // Whatever ended the loop, keep what is there: drain once more and close with the index.
     let drained = taps.drain(&mut rec);
     let status = rec.status();
-    let totals = rec.close()?;
+    let totals = match rec.close() {
+        Ok(totals) => totals,
+        Err(e @ recorder::RecordError::Stopped { .. }) => {
+            tracing::error!("{e}");
+            served?;
+            return drained;
+        }
+        Err(e) => return Err(e.into()),
+    };
     let _ = status_out.send(status);
     let holes: u64 = totals.counts.values().map(|c| c.holes).sum();
     for (c, n) in &totals.counts {
@@ -186,6 +216,7 @@ fn record(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     }
     tracing::info!(
         parts = totals.parts.len(),
+        complete = totals.stopped.is_none(),
         messages = totals.messages,
         mb = totals.bytes as f64 / 1e6,
         "flight record closed: {}",

@@ -1,6 +1,8 @@
 //! Reading a flight record back: every part in order, every message in file order, decoded into the
 //! payloads the mesh sent (the `mcap` crate's streaming reader: it needs no index, so a part cut by
-//! a SIGKILL is read up to its last complete chunk, and reported as cut).
+//! a SIGKILL is read up to its last commit, and reported as cut: it ends in the recorder's trailer,
+//! not in a summary; a part written before the record was sealed (`crate::seal`) ends at its last
+//! complete chunk).
 
 use crate::channels::{Channel, Recorded};
 use crate::image::Image;
@@ -126,6 +128,15 @@ impl Reader {
             };
             let m = match reader.next() {
                 None => {
+                    if !closed(part) {
+                        self.summary.cut.push(Cut {
+                            path: part.clone(),
+                            messages: *read,
+                            reason:
+                                "not closed (no summary): read up to the recorder's last commit"
+                                    .to_owned(),
+                        });
+                    }
                     self.current = None;
                     continue;
                 }
@@ -179,6 +190,19 @@ impl Iterator for Reader {
     fn next(&mut self) -> Option<Self::Item> {
         self.next_message().transpose()
     }
+}
+
+/// Whether the part at `path` was closed: it ends in a footer that points to a summary.
+fn closed(path: &Path) -> bool {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut tail = [0u8; crate::seal::FOOTER_LEN as usize];
+    let read = std::fs::File::open(path).and_then(|mut f| {
+        f.seek(SeekFrom::End(-(tail.len() as i64)))?;
+        f.read_exact(&mut tail)
+    });
+    read.is_ok()
+        && crate::seal::ends_in_footer(&tail)
+        && u64::from_le_bytes(tail[9..17].try_into().unwrap_or_default()) != 0
 }
 
 /// Reads the record at `path` (all its parts), calling `f` with each message in file order.

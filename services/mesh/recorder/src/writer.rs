@@ -1,11 +1,14 @@
 //! Writing a flight record: one foxglove `Context` holds the channels and feeds the MCAP file (and,
 //! when asked, the live view's WebSocket server, which so serves exactly the file's channels). The
-//! file is chunked and zstd-compressed, flushed on request (a flush closes the open chunk: what a
-//! SIGKILL can lose), rotated to a new part when it reaches its size limit, and closed with its
-//! summary and index.
+//! file is chunked and zstd-compressed, each chunk assembled in memory, and committed on request (a
+//! flush closes the open chunk and commits it: what a SIGKILL can lose is what came since), sealed
+//! at every moment so that any MCAP reader opens it (`crate::seal`), rotated to a new part when it
+//! reaches its size limit, and closed with its summary and index. A write that fails (a full disk)
+//! stops the recording, once: the record stays readable up to its last commit.
 
 use crate::channels::{Channel, Key, Recorded};
 use crate::keep::{Keep, Keeper, Overlay};
+use crate::seal::{SealedFile, Shared};
 use crate::{image, part_path};
 use foxglove::messages::{ImageAnnotations, RawImage};
 use foxglove::{
@@ -13,14 +16,11 @@ use foxglove::{
     RawChannel, Schema, WebSocketServerHandle,
 };
 use messages::{CableObservationMsg, CameraFrameHeader, RecorderStatus};
+use runtime::clock::unix_ns;
 use std::collections::BTreeMap;
-use std::fs::File;
-use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::{SystemTime, UNIX_EPOCH};
 
 /// How a record is written.
 #[derive(Clone, Debug, PartialEq)]
@@ -74,33 +74,48 @@ pub enum RecordError {
     },
     #[error("bad option: {0}")]
     Option(String),
+    /// Writing failed (a full disk): the record ends at its last commit and nothing more is written
+    /// to it.
+    #[error(
+        "the flight record {} stops here{}: {reason}; it holds {kept} messages, readable; the recorder goes on without recording",
+        path.display(), if *.disk_full { " (the disk is full)" } else { "" }
+    )]
+    Stopped {
+        path: PathBuf,
+        disk_full: bool,
+        reason: String,
+        kept: u64,
+    },
 }
 
-/// A file that counts its length, so the recorder can rotate by size while the MCAP writer owns it.
-struct CountingFile {
-    inner: BufWriter<File>,
-    pos: u64,
-    len: Arc<AtomicU64>,
-}
-
-impl Write for CountingFile {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        let n = self.inner.write(buf)?;
-        self.pos += n as u64;
-        self.len.fetch_max(self.pos, Ordering::Relaxed);
-        Ok(n)
-    }
-
-    fn flush(&mut self) -> std::io::Result<()> {
-        self.inner.flush()
+impl RecordError {
+    /// Whether the record could not be created or written because the disk is full.
+    pub fn is_disk_full(&self) -> bool {
+        match self {
+            RecordError::Stopped { disk_full, .. } => *disk_full,
+            RecordError::Create { source, .. } => durable::is_disk_full(source),
+            _ => false,
+        }
     }
 }
 
-impl Seek for CountingFile {
-    fn seek(&mut self, to: SeekFrom) -> std::io::Result<u64> {
-        self.pos = self.inner.seek(to)?;
-        Ok(self.pos)
-    }
+/// The MCAP writer's options for a flight record: chunks of `chunk_bytes` (uncompressed), zstd at
+/// `level`, each chunk assembled in memory, for a [`SealedFile`].
+pub fn mcap_options(chunk_bytes: u64, level: u32) -> McapWriteOptions {
+    McapWriteOptions::new()
+        .compression(Some(McapCompression::Zstd))
+        .compression_level(level)
+        // zstd's own worker threads would be hidden load on a 2-core vehicle computer.
+        .compression_threads(0)
+        .chunk_size(Some(chunk_bytes))
+        // Each chunk is assembled in memory and reaches the file whole (`crate::seal`): the
+        // writer never seeks back to fill in a chunk's length.
+        .disable_seeking(true)
+        // The sealed file's pad records lie between the writer's records, so the CRCs of the
+        // data and summary sections (optional in MCAP: 0 means none) would not match; each
+        // chunk keeps its own CRC.
+        .calculate_data_section_crc(false)
+        .calculate_summary_section_crc(false)
 }
 
 /// The flight recorder's totals at its close.
@@ -110,6 +125,15 @@ pub struct Totals {
     pub messages: u64,
     pub bytes: u64,
     pub counts: BTreeMap<Channel, crate::keep::Counts>,
+    /// Why the recording stopped before the close (a full disk), if it did.
+    pub stopped: Option<String>,
+}
+
+/// The part being written: the MCAP writer over its sealed file, and what the recorder sees of the
+/// file.
+struct Part {
+    handle: McapWriterHandle<SealedFile>,
+    file: Arc<Shared>,
 }
 
 /// A flight record being written.
@@ -119,11 +143,12 @@ pub struct FlightRecorder {
     json: BTreeMap<Channel, Arc<RawChannel>>,
     image: foxglove::Channel<RawImage>,
     overlay: foxglove::Channel<ImageAnnotations>,
-    file: Option<McapWriterHandle<CountingFile>>,
+    file: Option<Part>,
     part: u32,
     parts: Vec<PathBuf>,
-    len: Arc<AtomicU64>,
     closed_bytes: u64,
+    /// Why the recording stopped (a full disk): nothing is written any more.
+    stopped: Option<String>,
     messages: u64,
     flushed_messages: u64,
     status_seq: u64,
@@ -134,12 +159,6 @@ pub struct FlightRecorder {
     waiting: std::collections::VecDeque<CableObservationMsg>,
     buf: Vec<u8>,
     live: Option<WebSocketServerHandle>,
-}
-
-fn unix_ns() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as u64)
 }
 
 impl FlightRecorder {
@@ -203,8 +222,8 @@ impl FlightRecorder {
             file: None,
             part: first,
             parts: Vec::new(),
-            len: Arc::new(AtomicU64::new(0)),
             closed_bytes: 0,
+            stopped: None,
             messages: 0,
             flushed_messages: 0,
             status_seq: 0,
@@ -219,53 +238,69 @@ impl FlightRecorder {
     }
 
     fn write_options(&self) -> McapWriteOptions {
-        McapWriteOptions::new()
-            .compression(Some(McapCompression::Zstd))
-            .compression_level(self.opts.zstd_level)
-            // zstd's own worker threads would be hidden load on a 2-core vehicle computer.
-            .compression_threads(0)
-            .chunk_size(Some(self.opts.chunk_bytes))
+        mcap_options(self.opts.chunk_bytes, self.opts.zstd_level)
     }
 
-    fn open_part(&mut self) -> Result<McapWriterHandle<CountingFile>, RecordError> {
+    fn open_part(&mut self) -> Result<Part, RecordError> {
         let path = part_path(&self.opts.path, self.part);
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).map_err(|source| RecordError::Create {
-                path: path.clone(),
-                source,
-            })?;
-        }
-        let file = File::create_new(&path).map_err(|source| RecordError::Create {
+        let create = |source| RecordError::Create {
             path: path.clone(),
             source,
-        })?;
-        self.len = Arc::new(AtomicU64::new(0));
-        let counting = CountingFile {
-            inner: BufWriter::with_capacity(256 << 10, file),
-            pos: 0,
-            len: Arc::clone(&self.len),
+        };
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(create)?;
+        }
+        if path.exists() {
+            return Err(create(std::io::Error::from(
+                std::io::ErrorKind::AlreadyExists,
+            )));
+        }
+        let sealed = SealedFile::new(&path);
+        let file = sealed.shared();
+        let write = |source| RecordError::Write {
+            path: path.clone(),
+            source,
         };
         let handle = self
             .ctx
             .mcap_writer_with_options(self.write_options())
-            .create(counting)
-            .map_err(|source| RecordError::Write {
-                path: path.clone(),
-                source,
-            })?;
+            .create(sealed)
+            .map_err(write)?;
         let mut meta = self.metadata.clone();
         meta.insert("part".into(), self.part.to_string());
         meta.insert("part_started_unix_ns".into(), unix_ns().to_string());
         meta.insert("frame_every".into(), self.opts.frame_every.to_string());
-        handle
-            .write_metadata("cabletrack", meta)
-            .map_err(|source| RecordError::Write {
-                path: path.clone(),
-                source,
-            })?;
+        handle.write_metadata("cabletrack", meta).map_err(write)?;
+        // The first commit creates the file, whole.
+        if let Err(e) = handle.flush() {
+            let source = match file.failed() {
+                Some((kind, message)) => std::io::Error::new(kind, message),
+                None => std::io::Error::other(e.to_string()),
+            };
+            return Err(create(source));
+        }
         tracing::info!(path = %path.display(), part = self.part, "recording");
         self.parts.push(path);
-        Ok(handle)
+        Ok(Part { handle, file })
+    }
+
+    /// Stops the recording after a failed write: the part's writer is dropped (what it still
+    /// holds goes nowhere), the channels lose their file sink, the live view goes on.
+    fn stop(&mut self, path: PathBuf, error: Option<(std::io::ErrorKind, String)>) -> RecordError {
+        let (kind, reason) =
+            error.unwrap_or((std::io::ErrorKind::Other, "the writer failed".to_owned()));
+        let disk_full = durable::is_disk_full(&std::io::Error::from(kind));
+        if let Some(part) = self.file.take() {
+            self.closed_bytes += part.file.committed();
+            drop(part.handle);
+        }
+        self.stopped = Some(reason.clone());
+        RecordError::Stopped {
+            path,
+            disk_full,
+            reason,
+            kept: self.flushed_messages,
+        }
     }
 
     fn path(&self) -> PathBuf {
@@ -360,7 +395,12 @@ impl FlightRecorder {
 
     /// Bytes written so far, every part.
     pub fn bytes(&self) -> u64 {
-        self.closed_bytes + self.len.load(Ordering::Relaxed)
+        self.closed_bytes + self.file.as_ref().map_or(0, |p| p.file.written())
+    }
+
+    /// Why the recording stopped before its close (a full disk), if it did.
+    pub fn stopped(&self) -> Option<&str> {
+        self.stopped.as_deref()
     }
 
     pub fn messages(&self) -> u64 {
@@ -371,37 +411,56 @@ impl FlightRecorder {
         &self.keeper
     }
 
-    /// Closes the open chunk and pushes everything to the file: a SIGKILL after this keeps it all.
+    /// Closes the open chunk and commits everything to the file: a SIGKILL or a power cut after
+    /// this keeps it all. A failure stops the recording (one error, then nothing: later calls do
+    /// nothing).
     pub fn flush(&mut self) -> Result<(), RecordError> {
-        if let Some(file) = &self.file {
-            file.flush().map_err(|source| RecordError::Write {
-                path: self.path(),
-                source,
-            })?;
+        let Some(part) = &self.file else {
+            return Ok(());
+        };
+        if part.handle.flush().is_err() {
+            let failed = part.file.failed();
+            return Err(self.stop(self.path(), failed));
         }
         self.flushed_messages = self.messages;
         Ok(())
     }
 
-    /// Starts the next part when this one has reached its size limit; `true` when it did.
+    /// Starts the next part when this one has reached its size limit; `true` when it did. A failure
+    /// stops the recording, as [`FlightRecorder::flush`]'s does.
     pub fn rotate_if_due(&mut self) -> Result<bool, RecordError> {
-        if self.len.load(Ordering::Relaxed) < self.opts.rotate_bytes {
+        let Some(old) = &self.file else {
+            return Ok(false);
+        };
+        if old.file.written() < self.opts.rotate_bytes {
             return Ok(false);
         }
         let old_path = self.path();
-        let old_len = Arc::clone(&self.len);
         self.part += 1;
-        // The new sink first, then the old one closed: nothing is logged in between (one thread),
+        // The new part first, then the old one closed: nothing is logged in between (one thread),
         // so every message lands in exactly one part.
-        let new = self.open_part()?;
-        if let Some(old) = self.file.replace(new) {
-            old.close().map_err(|source| RecordError::Write {
-                path: old_path.clone(),
-                source,
-            })?;
-        }
-        let old_len = old_len.load(Ordering::Relaxed);
+        let new = match self.open_part() {
+            Ok(new) => new,
+            Err(e) => {
+                let error = match &e {
+                    RecordError::Create { source, .. } => Some((source.kind(), source.to_string())),
+                    _ => Some((std::io::ErrorKind::Other, e.to_string())),
+                };
+                return Err(self.stop(part_path(&self.opts.path, self.part), error));
+            }
+        };
+        let Some(old) = self.file.replace(new) else {
+            return Ok(false);
+        };
+        old.file.closing();
+        let closed = old.handle.close();
+        let old_len = old.file.committed();
         self.closed_bytes += old_len;
+        if closed.is_err() {
+            // The old part stays readable up to its last commit, without its index.
+            let failed = old.file.failed();
+            return Err(self.stop(old_path, failed));
+        }
         self.flushed_messages = self.messages;
         tracing::info!(closed = %old_path.display(), bytes = old_len, "rotated");
         Ok(true)
@@ -432,7 +491,7 @@ impl FlightRecorder {
     pub fn close(mut self) -> Result<Totals, RecordError> {
         self.keeper.finish();
         let counts = self.keeper.counts().clone();
-        if let Some(file) = self.file.take() {
+        if let Some(part) = self.file.take() {
             let path = self.path();
             let mut meta = BTreeMap::new();
             meta.insert("messages".to_owned(), self.messages.to_string());
@@ -446,16 +505,22 @@ impl FlightRecorder {
                     ),
                 );
             }
-            file.write_metadata("recorder", meta)
+            part.handle
+                .write_metadata("recorder", meta)
                 .map_err(|source| RecordError::Write {
                     path: path.clone(),
                     source,
                 })?;
-            let mut out = file
-                .close()
-                .map_err(|source| RecordError::Write { path, source })?;
-            let _ = out.flush();
-            let _ = out.inner.get_ref().sync_all();
+            // The close's summary is committed, synced, and its footer ends the file.
+            part.file.closing();
+            let closed = part.handle.close();
+            self.closed_bytes += part.file.committed();
+            if let Err(source) = closed {
+                return Err(match part.file.failed() {
+                    Some(failed) => self.stop(path, Some(failed)),
+                    None => RecordError::Write { path, source },
+                });
+            }
         }
         if let Some(live) = self.live.take() {
             live.stop().wait_blocking();
@@ -465,6 +530,7 @@ impl FlightRecorder {
             messages: self.messages,
             bytes: self.bytes(),
             counts,
+            stopped: self.stopped.clone(),
         })
     }
 }

@@ -189,3 +189,116 @@ fn the_mcap_python_reader_lists_decodes_and_validates_every_channel() {
         "{overlays:?}"
     );
 }
+
+/// What the Python reader made of each file (`read_cut_records.py`): per file, its messages'
+/// sequence numbers or its error.
+fn read_cut_records(files: &[PathBuf], dir: &Path) -> serde_json::Map<String, Value> {
+    let out = dir.join("cut-records.json");
+    let log = dir.join("cut-records.log");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/read_cut_records.py");
+    let mut child = runtime::process::Spawn::new(python())
+        .arg(&script)
+        .arg(&out)
+        .args(files)
+        .log(&log)
+        .die_with_parent()
+        .start()
+        .expect("python starts");
+    let status = child
+        .wait_timeout(Duration::from_secs(120))
+        .unwrap_or_else(|| {
+            panic!(
+                "the Python reader did not finish in 120 s:\n{}",
+                child.log()
+            )
+        });
+    assert!(
+        status.success(),
+        "the Python reader failed:\n{}",
+        child.log()
+    );
+    match serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap() {
+        Value::Object(m) => m,
+        other => panic!("{other}"),
+    }
+}
+
+#[test]
+fn a_record_cut_at_every_step_of_its_writing_opens_in_the_python_reader_up_to_its_last_commit() {
+    use std::collections::BTreeMap;
+    let dir = tempfile::tempdir().unwrap();
+    let (sealed, journal) = recorder::seal::SealedFile::journaled(&dir.path().join("dive.mcap"));
+    let file = sealed.shared();
+    let mut w = recorder::writer::mcap_options(4096, 1)
+        .create(sealed)
+        .unwrap();
+    let schema = w
+        .add_schema("cabletrack.Test", "jsonschema", b"{}")
+        .unwrap();
+    let channel = w
+        .add_channel(schema, "/test", "json", &BTreeMap::new())
+        .unwrap();
+    w.flush().unwrap();
+    let mut visible = vec![0u64];
+    let mut seq = 0u32;
+    for _ in 0..5 {
+        for _ in 0..60 {
+            seq += 1;
+            let data = format!(
+                "{{\"seq\":{seq},\"x\":\"{}\"}}",
+                "ab".repeat(seq as usize % 50)
+            );
+            let header = mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence: seq,
+                log_time: u64::from(seq),
+                publish_time: u64::from(seq),
+            };
+            w.write_to_known_channel(&header, data.as_bytes()).unwrap();
+        }
+        w.flush().unwrap();
+        visible.push(u64::from(seq));
+    }
+    file.closing();
+    w.finish().unwrap();
+    drop(w);
+
+    let states = recorder::seal::crash_states(&journal);
+    let cuts = dir.path().join("cuts");
+    std::fs::create_dir(&cuts).unwrap();
+    let files: Vec<PathBuf> = states
+        .iter()
+        .filter_map(|(_, s)| s.as_ref())
+        .enumerate()
+        .map(|(i, bytes)| {
+            let path = cuts.join(format!("{i:03}.mcap"));
+            std::fs::write(&path, bytes).unwrap();
+            path
+        })
+        .collect();
+    assert!(files.len() >= 5 * 6, "{} states", files.len());
+    let read = read_cut_records(&files, dir.path());
+    let mut last = 0;
+    for path in &files {
+        let r = &read[&path.display().to_string()];
+        assert!(r.get("error").is_none(), "{}: {r}", path.display());
+        let n = r["messages"].as_u64().unwrap();
+        assert!(
+            visible.contains(&n),
+            "{}: {n} messages, not a commit's {visible:?}",
+            path.display()
+        );
+        assert!(n >= last, "{}: {n} after {last}", path.display());
+        assert_eq!(
+            r["sequences"],
+            json!((1..=n).collect::<Vec<_>>()),
+            "{}",
+            path.display()
+        );
+        last = n;
+    }
+    assert_eq!(last, u64::from(seq));
+    // The closed file has its index, which the reader used.
+    let closed = &read[&files.last().unwrap().display().to_string()];
+    assert_eq!(closed["summary"], json!(true));
+}

@@ -272,34 +272,6 @@ pub struct ServiceCommand {
     pub placement: Placement,
 }
 
-/// The `supervisor` command line that runs `mesh` with the experiment's `seed` in the iceoryx2
-/// namespace `iox`, passing `--config CONFIG` when given and `--set KEY=VALUE` for each of `sets`:
-/// how the tests and the benchmarks start a mesh.
-pub fn command_line(
-    mesh: &Path,
-    config: Option<&Path>,
-    seed: u64,
-    iox: &runtime::IoxSettings,
-    sets: &[(&str, String)],
-) -> Vec<String> {
-    let mut args: Vec<String> = vec!["--mesh".into(), mesh.display().to_string()];
-    if let Some(dir) = config {
-        args.extend(["--config".into(), dir.display().to_string()]);
-    }
-    args.extend([
-        "--seed".into(),
-        seed.to_string(),
-        "--iox-prefix".into(),
-        iox.prefix.clone(),
-        "--iox-root".into(),
-        iox.root.clone(),
-    ]);
-    for (k, v) in sets {
-        args.extend(["--set".into(), format!("{k}={v}")]);
-    }
-    args
-}
-
 /// Replaces every `{key}` in `text`; the first key without a value is the error.
 pub fn substitute(text: &str, vars: &BTreeMap<String, String>) -> Result<String, String> {
     let mut out = String::new();

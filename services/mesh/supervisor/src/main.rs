@@ -4,6 +4,11 @@
 //! services named in `stop_when` are done, and on SIGINT/SIGTERM stops them all: SIGTERM to each, a
 //! grace period, then SIGKILL (`runtime::process`), the observers last. Every start, exit, restart
 //! and stop is logged and published on the endpoint's `supervisor/events` topic.
+//!
+//! With `--own-namespace` the mesh runs in an iceoryx2 namespace of the run's own (a prefix and a
+//! root no other run uses, `runtime::Namespace`), printed at start; when the run ends the supervisor
+//! checks that its services left no shared memory behind (the run fails if they did) and removes
+//! the namespace.
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
@@ -28,12 +33,8 @@ mod watch;
     about = "Runs a mesh of cabletrack services described by a file in config/."
 )]
 struct Args {
-    /// The mesh file (e.g. config/sim-mesh.toml).
-    #[arg(long)]
-    mesh: PathBuf,
-    /// A placeholder's value in the mesh file, KEY=VALUE (repeatable).
-    #[arg(long = "set", value_parser = parse_key_value)]
-    set: Vec<(String, String)>,
+    #[command(flatten)]
+    launch: runtime::MeshArgs,
     /// Where the service programs are (default: beside this one).
     #[arg(long)]
     bin_dir: Option<PathBuf>,
@@ -43,20 +44,11 @@ struct Args {
     /// Seconds an observer (`observer = true`) gets to say it is ready before the mesh is given up.
     #[arg(long, default_value_t = 30.0)]
     ready_timeout_s: f64,
-    /// The configuration directory, passed to every service.
-    #[arg(long, default_value = "config", env = "CABLETRACK_CONFIG")]
-    config: PathBuf,
-    /// The experiment's seed, passed to every service (and as `{seed}`).
-    #[arg(long, default_value_t = 1, env = "CABLETRACK_SEED")]
-    seed: u64,
-    #[command(flatten)]
-    iox: runtime::IoxSettings,
-}
-
-fn parse_key_value(s: &str) -> Result<(String, String), String> {
-    s.split_once('=')
-        .map(|(k, v)| (k.to_owned(), v.to_owned()))
-        .ok_or_else(|| format!("`{s}` is not KEY=VALUE"))
+    /// Run in an iceoryx2 namespace of this run's own instead of --iox-prefix and --iox-root: a
+    /// prefix and a root no other run uses, printed at start, removed when the run ends (the run
+    /// fails if the services left shared memory behind).
+    #[arg(long)]
+    own_namespace: bool,
 }
 
 fn main() -> ExitCode {
@@ -165,9 +157,7 @@ impl Events {
             return;
         };
         self.seq += 1;
-        let wall = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos() as u64);
+        let wall = runtime::clock::unix_ns();
         let mut event = SupervisorEvent::new(self.seq, wall, kind, &service.cmd.name);
         event.pid = pid;
         event.status = status;
@@ -214,17 +204,17 @@ fn start(s: &mut Service, env: &[(&str, String)], ready_pipe: bool) -> Result<Ch
 }
 
 fn run(args: Args) -> Result<ExitCode> {
-    let mesh = MeshFile::load(&args.mesh)?;
+    let mesh = MeshFile::load(&args.launch.mesh)?;
     let endpoint: Endpoint = mesh
         .mesh
         .endpoint
         .parse()
         .map_err(anyhow::Error::msg)
-        .with_context(|| format!("{}: mesh.endpoint", args.mesh.display()))?;
-    let mut vars: BTreeMap<String, String> = args.set.iter().cloned().collect();
+        .with_context(|| format!("{}: mesh.endpoint", args.launch.mesh.display()))?;
+    let mut vars: BTreeMap<String, String> = args.launch.set.iter().cloned().collect();
     vars.entry("seed".into())
-        .or_insert_with(|| args.seed.to_string());
-    let commands = mesh.commands(&vars, &args.mesh)?;
+        .or_insert_with(|| args.launch.run.seed.to_string());
+    let commands = mesh.commands(&vars, &args.launch.mesh)?;
     let bin_dir = match &args.bin_dir {
         Some(d) => d.clone(),
         None => std::env::current_exe()?
@@ -232,21 +222,35 @@ fn run(args: Args) -> Result<ExitCode> {
             .context("the supervisor's directory")?
             .to_owned(),
     };
-    let config_dir = args
-        .config
-        .canonicalize()
-        .with_context(|| format!("config directory {}", args.config.display()))?;
-    let iox = args.iox.config()?;
+    // Dropped last: removes the run's own namespace whichever way the run ends.
+    let own = args.own_namespace.then(|| runtime::Namespace::new("mesh"));
+    // What every service is given: the configuration (absolute: a service may run from elsewhere),
+    // the seed, the namespace.
+    let given = &args.launch.run;
+    let run = runtime::RunArgs {
+        config: given
+            .config
+            .canonicalize()
+            .with_context(|| format!("config directory {}", given.config.display()))?,
+        seed: given.seed,
+        iox: match &own {
+            Some(ns) => {
+                cli::outln!(
+                    "supervisor: this run's own namespace: --iox-prefix {} --iox-root {}",
+                    ns.iox.prefix,
+                    ns.iox.root
+                )?;
+                ns.iox.clone()
+            }
+            None => given.iox.clone(),
+        },
+    };
+    let iox = run.iox.config()?;
     let signals = Signals::install()?;
     let node = runtime::create_node("supervisor", &iox)?;
     let mut events = Events::open(&node, endpoint);
 
-    let env = [
-        ("CABLETRACK_CONFIG", config_dir.display().to_string()),
-        ("CABLETRACK_SEED", args.seed.to_string()),
-        ("CABLETRACK_IOX_PREFIX", args.iox.prefix.clone()),
-        ("CABLETRACK_IOX_ROOT", args.iox.root.clone()),
-    ];
+    let env = run.env();
     let mut services = Vec::new();
     for cmd in commands {
         let program = bin_dir.join(&cmd.binary);
@@ -270,7 +274,7 @@ fn run(args: Args) -> Result<ExitCode> {
         services.iter().map(|s| s.cmd.name.clone()).collect(),
         signals.write.try_clone()?,
     )?;
-    tracing::info!(mesh = %args.mesh.display(), services = services.len(), "starting the mesh");
+    tracing::info!(mesh = %args.launch.mesh.display(), services = services.len(), "starting the mesh");
     let stop_when = mesh.mesh.stop_when.clone();
     let restart = mesh.restart.clone();
 
@@ -395,6 +399,7 @@ fn run(args: Args) -> Result<ExitCode> {
     stop_all(&mut services, false, grace, &mut events);
     stop_all(&mut services, true, grace, &mut events);
     drop(events);
+    drop(watch);
     drop(node);
     let cleaned = runtime::remove_dead_nodes(&iox);
     if cleaned > 0 {
@@ -403,6 +408,18 @@ fn run(args: Args) -> Result<ExitCode> {
             "removed the leftovers of processes that had to be killed"
         );
     }
+    // The services are gone: what is still there of the run's own namespace they left behind.
+    let left = own.as_ref().map_or_else(Vec::new, |ns| ns.leftovers());
+    let outcome = match outcome {
+        Ok(()) if !left.is_empty() => Err(format!(
+            "the services left shared-memory files behind: {left:?}"
+        )),
+        Err(why) if !left.is_empty() => {
+            tracing::error!(files = ?left, "the services left shared-memory files behind");
+            Err(why)
+        }
+        outcome => outcome,
+    };
     match outcome {
         Ok(()) => {
             tracing::info!("mesh stopped");

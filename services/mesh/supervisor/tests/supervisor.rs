@@ -266,3 +266,54 @@ name = "camera"
         "nothing else was started:\n{log}"
     );
 }
+
+#[test]
+fn with_its_own_namespace_the_mesh_runs_apart_and_the_namespace_is_removed_after() {
+    // The test's namespace is in the supervisor's environment: its own must take its place.
+    let ns = Namespace::new("sun");
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("run.json");
+    let mesh = testkit::config_dir().join("sim-mesh.toml");
+    let mut args: Vec<String> = ["--own-namespace", "--mesh", mesh.to_str().unwrap()]
+        .map(String::from)
+        .to_vec();
+    let sets = [
+        ("episodes", "2".to_owned()),
+        ("eyes", "ideal".into()),
+        ("state", dir.path().display().to_string()),
+        ("json", json.display().to_string()),
+    ];
+    let shared = testkit::SHARED_MACHINE.map(|(k, v)| (k, v.to_owned()));
+    for (k, v) in sets.iter().chain(&shared) {
+        args.extend(["--set".to_owned(), format!("{k}={v}")]);
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let mut supervisor = Process::start(&ns, &testkit::binary("supervisor"), &args);
+    let status = supervisor.wait(T).expect("the mesh runs its two episodes");
+    let log = supervisor.log();
+    assert!(status.success(), "{log}");
+    let words: Vec<&str> = log
+        .lines()
+        .find(|l| l.contains("this run's own namespace"))
+        .unwrap_or_else(|| panic!("the namespace is printed at start:\n{log}"))
+        .split_whitespace()
+        .collect();
+    let after = |flag: &str| words[words.iter().position(|w| *w == flag).unwrap() + 1];
+    let (prefix, root) = (after("--iox-prefix"), after("--iox-root"));
+    assert_ne!(prefix, ns.prefix());
+    assert!(
+        std::fs::metadata(&json).is_ok_and(|m| m.len() > 0),
+        "the mesh ran to its end in that namespace (the monitor wrote its record):\n{log}"
+    );
+    assert!(
+        ns.shm_files().is_empty(),
+        "the environment's namespace was not used: {:?}",
+        ns.shm_files()
+    );
+    assert!(
+        runtime::shm_files(prefix).is_empty(),
+        "nothing of {prefix} is left in /dev/shm: {:?}",
+        runtime::shm_files(prefix)
+    );
+    assert!(!Path::new(root).exists(), "{root} is removed");
+}

@@ -9,7 +9,7 @@ pub mod security;
 
 use messages::topics::{self, Endpoint, health, shore};
 use messages::{Qos, Stamp};
-use runtime::lockstep::{Screen, ScreenLimits, Verdict};
+use runtime::screen::{Screen, ScreenLimits, Verdict};
 use security::Security;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -147,6 +147,8 @@ impl Shown {
     /// Whether the step stamped `stamp`, arriving at `now_ns` (this host's monotonic clock), is
     /// shown.
     pub fn judge(&mut self, stamp: &Stamp, now_ns: u64) -> bool {
+        // The vehicle clock is signed; a monotonic reading fits it for centuries.
+        let now_ns = now_ns as i64;
         match self.screen.check(stamp, now_ns) {
             Verdict::New => {
                 self.screen.accept(stamp, now_ns);
@@ -460,7 +462,7 @@ mod tests {
     /// A timed stamp; the vehicle's clock starts at 1 s (a clock of 0 means untimed).
     fn stamp(epoch: u32, seq: u64, clock_ms: u64) -> Stamp {
         let clock_ns = (1000 + clock_ms) * 1_000_000;
-        Stamp::new(seq, clock_ns, 0, 0, messages::StepStatus::Running).timed(epoch, clock_ns)
+        Stamp::new(seq, clock_ns, 0, 0, messages::StepStatus::Running).timed(epoch, clock_ns as i64)
     }
 
     #[test]

@@ -24,6 +24,7 @@ use iceoryx2_link_tunnel::Tunnel;
 use messages::topics::{self, Endpoint, health, shore};
 use messages::{FrameInbox, Inbox, Mission, MissionCommand, Outbox, Topic};
 use runtime::Tally;
+use runtime::clock::monotonic_ns;
 use shore_link::security::{self, KeyFiles, Security};
 use shore_link::{AllowList, Arrival, Judged, Report, Rogue, Shown, Side, TopicTraffic};
 use std::collections::BTreeMap;
@@ -228,7 +229,7 @@ fn main() -> ExitCode {
         }
         Command::Stop { iox } => stop(&iox),
         Command::Now => {
-            println!("{}", now_ns());
+            println!("{}", monotonic_ns());
             Ok(())
         }
         Command::Report {
@@ -386,17 +387,6 @@ fn node(cfg: &IoxConfig, name: &str) -> Result<Node<ipc::Service>> {
         .map_err(|e| anyhow!("cannot create node `{name}`: {e:?}"))
 }
 
-/// The monotonic clock (ns), as both sides of the demo read it.
-fn now_ns() -> u64 {
-    let mut t = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: a valid timespec to fill.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut t) };
-    t.tv_sec as u64 * 1_000_000_000 + t.tv_nsec as u64
-}
-
 /// Writes one JSON line.
 fn line(out: &mut impl Write, value: &serde_json::Value) -> Result<()> {
     serde_json::to_writer(&mut *out, value)?;
@@ -508,9 +498,9 @@ fn link(
     let mut failure = None;
     waitset
         .wait_and_process(|_| {
-            let now = now_ns();
+            let now = monotonic_ns();
             if let Some(nag) = &mut insecure
-                && nag.count(now).is_some()
+                && nag.count(now as i64).is_some()
             {
                 tracing::warn!(
                     "--insecure: the link is plain TCP on {endpoint}; anyone who reaches it can read the telemetry and stop the vehicle"
@@ -607,7 +597,7 @@ impl MissionGuard {
                 self.held = Some(o);
             }
             Err(e) => {
-                if self.missed.count(now).is_some() {
+                if self.missed.count(now as i64).is_some() {
                     tracing::warn!(
                         "cannot hold the mission topic's spare publisher ({e}): another process of the vehicle publishes on it"
                     );
@@ -664,7 +654,7 @@ impl Recorder {
         for o in self.observations.drain()? {
             let a = Arrival {
                 seq: o.stamp.seq,
-                at_ns: now_ns(),
+                at_ns: monotonic_ns(),
             };
             line(&mut self.out, &serde_json::json!({ "arrival": a }))?;
         }
@@ -751,7 +741,7 @@ fn operator(seconds: f64, record: &std::path::Path, frames: bool, iox: &Iox) -> 
                 .entry(topics::CABLE_OBSERVATION.name)
                 .or_default()
                 .add(std::mem::size_of_val(&o));
-            let at_ns = now_ns();
+            let at_ns = monotonic_ns();
             let show = shown.judge(&o.stamp, at_ns);
             line(
                 out,
@@ -831,7 +821,7 @@ fn operator(seconds: f64, record: &std::path::Path, frames: bool, iox: &Iox) -> 
             "watched_s": watched.as_secs_f64(),
             "link_bytes": link_bytes,
             "topics": traffic,
-            "stop_sent_ns": now_ns(),
+            "stop_sent_ns": monotonic_ns(),
             "stops_sent": stops,
         }}),
     )?;
@@ -852,7 +842,7 @@ fn stop(iox: &Iox) -> Result<()> {
         &shore::service_name(&shore::MISSION),
         &shore::MISSION,
     )?;
-    let command = MissionCommand::new(1, now_ns(), Mission::Stop);
+    let command = MissionCommand::new(1, monotonic_ns(), Mission::Stop);
     mission.send(command)?;
     println!("stop sent (time_ns {})", command.time_ns);
     Ok(())
@@ -895,7 +885,7 @@ fn stop_until_silent(
     let start = Instant::now();
     let mut sent = Vec::new();
     while start.elapsed() < STOP_FOR {
-        let command = MissionCommand::new(sent.len() as u64 + 1, now_ns(), Mission::Stop);
+        let command = MissionCommand::new(sent.len() as u64 + 1, monotonic_ns(), Mission::Stop);
         mission.send(command)?;
         sent.push((command.seq, command.time_ns));
         let window = Instant::now();

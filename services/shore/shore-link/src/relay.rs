@@ -3,6 +3,7 @@
 //! the other through [`Impairment`] (netem's rules), one per direction, and sends it when due.
 
 use anyhow::{Context, Result, anyhow, bail};
+use runtime::clock::monotonic_ns;
 use shore_link::impair::{Counts, Impairment, Settings, netem_args};
 use std::fs::File;
 use std::io::Write;
@@ -80,16 +81,6 @@ fn attach(spec: &str) -> Result<OwnedFd> {
     Ok(fd)
 }
 
-fn now_ns() -> u64 {
-    let mut t = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: a valid timespec to fill.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut t) };
-    t.tv_sec as u64 * 1_000_000_000 + t.tv_nsec as u64
-}
-
 /// One direction: packets read from `from`, impaired, written to `to`.
 struct Direction {
     name: &'static str,
@@ -115,13 +106,13 @@ impl Direction {
                 };
             }
             let n = n as usize;
-            self.impairment.offer(now_ns(), buf[..n].to_vec(), n);
+            self.impairment.offer(monotonic_ns(), buf[..n].to_vec(), n);
         }
     }
 
     /// Writes every packet due.
     fn send_due(&mut self) {
-        while let Some(p) = self.impairment.pop_due(now_ns()) {
+        while let Some(p) = self.impairment.pop_due(monotonic_ns()) {
             // SAFETY: write(2) of a buffer we own.
             let n = unsafe { libc::write(self.to, p.as_ptr().cast(), p.len()) };
             if n < 0 {
@@ -190,7 +181,7 @@ pub fn impair(vehicle: &str, shore: &str, netem: &str, seed: u64) -> Result<()> 
         for d in &mut dirs {
             d.send_due();
         }
-        let now = now_ns();
+        let now = monotonic_ns();
         let next = dirs
             .iter()
             .filter_map(|d| d.impairment.next_departure())

@@ -7,7 +7,7 @@
 //! step and the mesh stays deterministic; and it judges every stamp first ([`Screen`]): a new epoch
 //! is followed, an older, stale or absurd step refused.
 
-use super::screen::{Refusal, Screen, Verdict};
+use crate::screen::{Refusal, Screen, Verdict};
 use messages::Stamp;
 use std::time::{Duration, Instant};
 
@@ -46,7 +46,7 @@ impl<O: Clone> Once<O> {
 
     /// Judges `stamp` arriving at `now_ns` (the consumer's vehicle clock): the cached output for a
     /// repeat, `Ok(())` for a new step, the refusal otherwise (counted and logged by the screen).
-    pub fn check(&mut self, stamp: &Stamp, now_ns: u64) -> Result<Option<O>, Refusal> {
+    pub fn check(&mut self, stamp: &Stamp, now_ns: i64) -> Result<Option<O>, Refusal> {
         match self.screen.check(stamp, now_ns) {
             Verdict::New => Ok(None),
             Verdict::Repeat => Ok(self.last.clone()),
@@ -55,7 +55,7 @@ impl<O: Clone> Once<O> {
     }
 
     /// Records `out` as the output of the new step `stamp` (judged by [`Once::check`]).
-    pub fn commit(&mut self, stamp: &Stamp, now_ns: u64, out: O) {
+    pub fn commit(&mut self, stamp: &Stamp, now_ns: i64, out: O) {
         self.screen.accept(stamp, now_ns);
         self.last = Some(out);
     }
@@ -65,7 +65,7 @@ impl<O: Clone> Once<O> {
     pub fn step<E>(
         &mut self,
         stamp: &Stamp,
-        now_ns: u64,
+        now_ns: i64,
         core: impl FnOnce() -> Result<O, E>,
     ) -> Result<Outcome<O>, E> {
         match self.check(stamp, now_ns) {
@@ -201,7 +201,7 @@ pub struct Partial<T, const N: usize> {
 mod tests {
     use super::*;
 
-    use crate::lockstep::ScreenLimits;
+    use crate::screen::ScreenLimits;
     use messages::StepStatus;
 
     fn once() -> Once<u64> {

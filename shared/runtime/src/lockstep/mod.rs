@@ -12,15 +12,14 @@
 //!   for a restarted process), so every consumer calls its core once per step and answers a repeated
 //!   step with the output it already computed ([`Once`]); the thruster allocator collects the three
 //!   commands of one step ([`Gather`]) and never mixes two steps. Every stamp is judged first, by
-//!   one rule ([`Screen`]): a restarted producer's new epoch is followed; an older, stale or absurd
-//!   step is refused, counted and logged.
+//!   the rule every consumer shares, lockstep or not ([`crate::screen::Screen`]): a restarted
+//!   producer's new epoch is followed; an older, stale or absurd step is refused, counted and
+//!   logged.
 
 mod clock;
 mod consumer;
 mod plant;
-mod screen;
 
 pub use clock::{Deadlines, Due, Limits, Phase};
 pub use consumer::{Gather, Once, Outcome, Partial};
 pub use plant::{Advanced, Cause, Lockstep, Plant, Reaction};
-pub use screen::{EPOCHS_REMEMBERED, MAX_UNTIMED_JUMP, Refusal, Screen, ScreenLimits, Verdict};

@@ -21,10 +21,14 @@
 //! - The pilot-input failsafe (`failsafe.cpp`): no MANUAL_CONTROL for `FS_PILOT_TIMEOUT` ->
 //!   "Lost manual control" (CRITICAL), the controls to neutral, and with `FS_PILOT_INPUT` = 2 a
 //!   disarm; once per loss (it latches until pilot input comes back).
-//! - MANUAL passes the axes through; STABILIZE and ALT_HOLD make yaw a rate command
-//!   (`ACRO_YAW_P`) and hold the heading 250 ms after the yaw stick is released (a P controller on
-//!   the heading, `ATC_ANG_YAW_P`, over a P controller on the yaw rate, `ATC_RAT_YAW_P`: simpler
-//!   than ArduSub's attitude controller).
+//! - MANUAL passes the axes through; STABILIZE and ALT_HOLD keep forward and lateral as thrust and
+//!   make yaw a rate command (`ACRO_YAW_P`, the yaw dead zone `RC4_DZ` scaled by the joystick
+//!   gain), followed as ArduSub's attitude controller does: the pilot's rate, limited in
+//!   acceleration (`ATC_ACCEL_Y_MAX`), is fed forward and integrated into a target heading; the
+//!   heading error (`ATC_ANG_YAW_P`) adds to it; a PI controller on the yaw rate
+//!   (`ATC_RAT_YAW_P`, `_I`, `_IMAX`, its target filtered at `ATC_RAT_YAW_FLTT`) gives the yaw
+//!   output. 250 ms after the yaw stick is released the heading then is held. Not emulated: the
+//!   input shaping's time constants and the square-root shaping of large heading errors.
 //! - The vectored mixer ([`mixer`]) with `MOT_n_DIRECTION`, PWM 1100..1900.
 //! - Telemetry at the requested intervals: SYS_STATUS, ATTITUDE, VFR_HUD, SERVO_OUTPUT_RAW;
 //!   STATUSTEXT on arming, disarming and failsafe.
@@ -37,13 +41,14 @@
 pub mod mixer;
 pub mod wire;
 
-use config::{ArduSubGeneration, AutopilotParams, ParamKind, param_value_ok};
+use config::{ArduSubGeneration, AutopilotParams, ParamKind, PilotMode, param_value_ok};
 use mavlink::dialects::ardupilotmega::{
     ATTITUDE_DATA, HEARTBEAT_DATA, MavAutopilot, MavMessage, MavModeFlag, MavParamType, MavResult,
     MavSeverity, MavState, MavSysStatusSensor, MavType, PARAM_VALUE_DATA, SERVO_OUTPUT_RAW_DATA,
     STATUSTEXT_DATA, SYS_STATUS_DATA, VFR_HUD_DATA,
 };
 use mixer::{Inputs, MOTORS};
+use model::pilot::Axes;
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 use wire::{CommandLong, Frame};
@@ -79,6 +84,16 @@ impl Mode {
             Mode::Stabilize => "STABILIZE",
             Mode::AltHold => "ALT_HOLD",
             Mode::Manual => "MANUAL",
+        }
+    }
+}
+
+impl From<PilotMode> for Mode {
+    fn from(m: PilotMode) -> Mode {
+        match m {
+            PilotMode::Manual => Mode::Manual,
+            PilotMode::Stabilize => Mode::Stabilize,
+            PilotMode::AltHold => Mode::AltHold,
         }
     }
 }
@@ -170,6 +185,15 @@ pub struct Vehicle {
     pub ground_speed: f64,
 }
 
+/// What the autopilot's AHRS reports of the vehicle's state.
+pub fn vehicle_of(state: &model::VehicleState, rate: &model::PoseRate) -> Vehicle {
+    Vehicle {
+        heading: state.pose.psi,
+        yaw_rate: state.velocity.r,
+        ground_speed: rate.x.hypot(rate.y),
+    }
+}
+
 /// A message to send.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Out {
@@ -251,16 +275,27 @@ pub fn norm_input(pwm: u16) -> f64 {
     ((pwm as f64 - 1500.0) / 400.0).clamp(-1.0, 1.0)
 }
 
-/// The yaw channel as an angle (centidegrees, +-4500) with a dead zone of `dz` us around 1500.
+/// The yaw channel as an angle (centidegrees, +-4500) with a dead zone of `dz` us around 1500, in
+/// `RC_Channel::pwm_to_angle_dz_trim`'s integer arithmetic (the dead zone truncated to whole us).
 pub fn yaw_angle(pwm: u16, dz: f64) -> f64 {
-    let p = pwm as f64;
-    let (high, low) = (1500.0 + dz, 1500.0 - dz);
-    if p > high {
-        4500.0 * (p - high) / (1900.0 - high)
-    } else if p < low {
-        4500.0 * (p - low) / (low - 1100.0)
+    let (p, dz) = (pwm as i32, dz.max(0.0) as i32);
+    let (high, low) = (1500 + dz, 1500 - dz);
+    let angle = if p > high && high != 1900 {
+        4500 * (p - high) / (1900 - high)
+    } else if p < low && low != 1100 {
+        4500 * (p - low) / (low - 1100)
     } else {
-        0.0
+        0
+    };
+    angle as f64
+}
+
+/// `v` moved towards `target` by at most `step` (no limit when `step` is not positive).
+fn approach(v: f64, target: f64, step: f64) -> f64 {
+    if step > 0.0 {
+        v + (target - v).clamp(-step, step)
+    } else {
+        target
     }
 }
 
@@ -311,11 +346,9 @@ pub struct ArduSub {
     failsafe: bool,
     streams: BTreeMap<u32, (Duration, Instant)>,
     vehicle: Vehicle,
-    /// The heading hold: the heading held, the twin time since the yaw stick was last used, the
-    /// yaw output of the last control step.
-    hold_heading: f64,
-    since_yaw_input: f64,
-    yaw_out: f64,
+    yaw: YawLoop,
+    /// Whether mode changes and arming are logged (not when the twin's own pilot takes off).
+    announce: bool,
     out: Vec<Out>,
     counters: Counters,
 }
@@ -347,9 +380,8 @@ impl ArduSub {
             failsafe: false,
             streams: BTreeMap::new(),
             vehicle: Vehicle::default(),
-            hold_heading: 0.0,
-            since_yaw_input: 0.0,
-            yaw_out: 0.0,
+            yaw: YawLoop::default(),
+            announce: true,
             out: Vec::new(),
             counters: Counters::default(),
         };
@@ -366,9 +398,7 @@ impl ArduSub {
         self.sticks = Sticks::NEUTRAL;
         self.last_pilot_input = now;
         self.failsafe = false;
-        self.yaw_out = 0.0;
-        self.hold_heading = self.vehicle.heading;
-        self.since_yaw_input = 0.0;
+        self.yaw = YawLoop::at(self.vehicle.heading);
         self.gain = boot_gain(
             self.param("JS_GAIN_DEFAULT"),
             self.param("JS_GAIN_MIN"),
@@ -418,6 +448,11 @@ impl ArduSub {
         self.armed
     }
 
+    /// Which ArduSub this one emulates.
+    pub fn generation(&self) -> ArduSubGeneration {
+        self.config.generation
+    }
+
     pub fn mode(&self) -> Mode {
         self.mode
     }
@@ -437,6 +472,11 @@ impl ArduSub {
 
     pub fn failsafe(&self) -> bool {
         self.failsafe
+    }
+
+    /// Adds faults to inject (times after the autopilot's first boot).
+    pub fn inject(&mut self, faults: impl IntoIterator<Item = Fault>) {
+        self.faults.extend(faults);
     }
 
     /// Whether the autopilot is running (not restarting) at `now`.
@@ -509,9 +549,15 @@ impl ArduSub {
                     self.counters.not_for_us += 1;
                     return None;
                 }
-                self.sticks =
-                    Sticks::from_joystick(m.x, m.y, m.z, m.r, self.gain, self.param("JS_THR_GAIN"));
-                self.last_pilot_input = now;
+                self.pilot(
+                    now,
+                    Axes {
+                        x: m.x,
+                        y: m.y,
+                        z: m.z,
+                        r: m.r,
+                    },
+                );
             }
             MavMessage::NAMED_VALUE_INT(v) => {
                 let name = v.name.to_str().unwrap_or("");
@@ -676,27 +722,27 @@ impl ArduSub {
         }
         match mode {
             Mode::Manual => self.sticks = Sticks::NEUTRAL,
-            Mode::AltHold | Mode::Stabilize => {
-                self.hold_heading = self.vehicle.heading;
-                self.since_yaw_input = 0.0;
-            }
+            Mode::AltHold | Mode::Stabilize => self.yaw = YawLoop::at(self.vehicle.heading),
         }
-        tracing::info!(from = self.mode.name(), to = mode.name(), "mode changed");
+        if self.announce {
+            tracing::info!(from = self.mode.name(), to = mode.name(), "mode changed");
+        }
         self.mode = mode;
         true
     }
 
     fn arm(&mut self) {
         self.armed = true;
-        self.hold_heading = self.vehicle.heading;
-        self.since_yaw_input = 0.0;
+        self.yaw = YawLoop::at(self.vehicle.heading);
         self.text(MavSeverity::MAV_SEVERITY_INFO, "Arming motors");
-        tracing::info!(mode = self.mode.name(), "armed");
+        if self.announce {
+            tracing::info!(mode = self.mode.name(), "armed");
+        }
     }
 
     fn disarm(&mut self, why: &str) {
         self.armed = false;
-        self.yaw_out = 0.0;
+        self.yaw = YawLoop::at(self.vehicle.heading);
         self.text(MavSeverity::MAV_SEVERITY_INFO, "Disarming motors");
         tracing::info!(why, "disarmed");
     }
@@ -827,7 +873,7 @@ impl ArduSub {
             tracing::warn!(for_s = (end - now).as_secs_f64(), "the autopilot restarts");
             self.armed = false;
             self.sticks = Sticks::NEUTRAL;
-            self.yaw_out = 0.0;
+            self.yaw = YawLoop::at(self.vehicle.heading);
             self.out.clear();
             self.down_until = Some(end);
         }
@@ -887,9 +933,10 @@ impl ArduSub {
         }
     }
 
-    /// The yaw rate the pilot asks for in the stabilised modes (rad/s).
+    /// The yaw rate the pilot asks for in the stabilised modes (rad/s): the stick's angle, its dead
+    /// zone scaled by the joystick gain, times ACRO_YAW_P.
     fn pilot_yaw_rate(&self) -> f64 {
-        let angle = yaw_angle(self.sticks.yaw, self.param("RC4_DZ"));
+        let angle = yaw_angle(self.sticks.yaw, self.param("RC4_DZ") * self.gain);
         // centidegrees x ACRO_YAW_P = centidegrees per second
         (angle * self.param("ACRO_YAW_P") / 100.0).to_radians()
     }
@@ -900,7 +947,7 @@ impl ArduSub {
         let yaw = match self.mode {
             // mode_manual.cpp: yaw scaled by ACRO_YAW_P against its default.
             Mode::Manual => norm_input(s.yaw) * self.param("ACRO_YAW_P") / 4.5,
-            Mode::Stabilize | Mode::AltHold => self.yaw_out,
+            Mode::Stabilize | Mode::AltHold => self.yaw.out,
         };
         Inputs {
             roll: 0.0,
@@ -942,9 +989,48 @@ impl ArduSub {
     #[doc(hidden)]
     pub fn arm_for_test(&mut self, now: Instant, x: i16) {
         self.arm();
-        self.sticks = Sticks::from_joystick(x, 0, 500, 0, self.gain, self.param("JS_THR_GAIN"));
-        self.last_pilot_input = now;
+        self.pilot(now, Axes { x, ..Axes::NEUTRAL });
         self.out.clear();
+    }
+
+    /// The pilot's sticks arrive at `now` (a ground station's MANUAL_CONTROL, or the twin's own
+    /// pilot on its thruster topic): RC overrides as `joystick.cpp` makes them.
+    pub fn pilot(&mut self, now: Instant, axes: Axes) {
+        self.sticks = Sticks::from_joystick(
+            axes.x,
+            axes.y,
+            axes.z,
+            axes.r,
+            self.gain,
+            self.param("JS_THR_GAIN"),
+        );
+        self.last_pilot_input = now;
+    }
+
+    /// Takes off in `mode` as a companion computer does: the mode set, then armed (the twin's own
+    /// pilot on its thruster topic; over MAVLink the stack's side sends the commands). Fails as
+    /// DO_SET_MODE would (ALT_HOLD without a depth sensor).
+    pub fn fly(&mut self, mode: Mode) -> Result<(), String> {
+        // The twin's own pilot takes off at every start (thousands of times in the trainer): the
+        // log says so once, quietly.
+        self.announce = false;
+        let set = self.set_mode(mode);
+        if set && !self.armed {
+            self.arm();
+        }
+        self.announce = true;
+        if !set {
+            return Err(format!("ArduSub refused the mode {}", mode.name()));
+        }
+        tracing::debug!(mode = mode.name(), "the twin's pilot took off");
+        Ok(())
+    }
+
+    /// The vehicle was put somewhere else (a reposition between trials, which an operator pilots):
+    /// the attitude loop starts again from its heading.
+    pub fn repositioned(&mut self, vehicle: Vehicle) {
+        self.vehicle = vehicle;
+        self.yaw = YawLoop::at(vehicle.heading);
     }
 
     /// What the autopilot's sensors say of the vehicle (for telemetry and the heading hold).
@@ -952,35 +1038,98 @@ impl ArduSub {
         self.vehicle = vehicle;
     }
 
-    /// One step of the attitude loop, `h` seconds of twin time, from the vehicle's state: the
-    /// heading hold of the stabilised modes advances; returns each motor's PWM for the step.
+    /// One step of the attitude loop, `h` seconds of twin time, from the vehicle's state: the yaw
+    /// loop of the stabilised modes advances; returns each motor's PWM for the step.
     pub fn control(&mut self, h: f64, vehicle: Vehicle) -> [u16; MOTORS] {
         self.vehicle = vehicle;
         if self.mode != Mode::Manual {
             if !self.armed || self.down_until.is_some() {
-                self.hold_heading = vehicle.heading;
-                self.since_yaw_input = 0.0;
-                self.yaw_out = 0.0;
+                self.yaw = YawLoop::at(vehicle.heading);
             } else {
-                let pilot = self.pilot_yaw_rate();
-                let target = if pilot != 0.0 {
-                    self.hold_heading = vehicle.heading;
-                    self.since_yaw_input = 0.0;
-                    pilot
-                } else {
-                    self.since_yaw_input += h;
-                    if self.since_yaw_input < YAW_RELEASE_S {
-                        self.hold_heading = vehicle.heading;
-                        0.0
-                    } else {
-                        self.param("ATC_ANG_YAW_P") * wrap_pi(self.hold_heading - vehicle.heading)
-                    }
+                let gains = YawGains {
+                    angle_p: self.param("ATC_ANG_YAW_P"),
+                    accel_max: self.param("ATC_ACCEL_Y_MAX").max(0.0) / 100.0 * DEG,
+                    rate_p: self.param("ATC_RAT_YAW_P"),
+                    rate_i: self.param("ATC_RAT_YAW_I"),
+                    rate_imax: self.param("ATC_RAT_YAW_IMAX"),
+                    filter_hz: self.param("ATC_RAT_YAW_FLTT"),
                 };
-                self.yaw_out =
-                    (self.param("ATC_RAT_YAW_P") * (target - vehicle.yaw_rate)).clamp(-1.0, 1.0);
+                let pilot = self.pilot_yaw_rate();
+                self.yaw.step(&gains, pilot, h, vehicle);
             }
         }
         self.pwm()
+    }
+}
+
+const DEG: f64 = std::f64::consts::PI / 180.0;
+
+/// The yaw attitude loop's gains (SI units).
+struct YawGains {
+    angle_p: f64,
+    /// rad/s/s; 0: no limit.
+    accel_max: f64,
+    rate_p: f64,
+    rate_i: f64,
+    rate_imax: f64,
+    filter_hz: f64,
+}
+
+/// The stabilised modes' yaw loop (`mode_althold.cpp` over `AC_AttitudeControl`): with the yaw
+/// stick used, a rate command fed forward and integrated into the target heading; released, the
+/// rate brought to 0 for 250 ms, then the heading of that moment held; a PI loop on the yaw rate.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct YawLoop {
+    /// The attitude target's heading and its feedforward rate.
+    target: f64,
+    feedforward: f64,
+    /// The heading to hold once released (`last_pilot_heading`) and the time since the stick was
+    /// last used.
+    hold: f64,
+    since_input: f64,
+    /// The rate controller: its filtered target, its integrator, its output.
+    rate_target: f64,
+    integrator: f64,
+    out: f64,
+}
+
+impl YawLoop {
+    /// At rest on `heading` (a mode entered, armed, disarmed, repositioned).
+    fn at(heading: f64) -> YawLoop {
+        YawLoop {
+            target: heading,
+            hold: heading,
+            ..YawLoop::default()
+        }
+    }
+
+    fn step(&mut self, g: &YawGains, pilot_rate: f64, h: f64, v: Vehicle) {
+        let accel = g.accel_max * h;
+        if pilot_rate != 0.0 || self.since_input + h < YAW_RELEASE_S {
+            if pilot_rate != 0.0 {
+                self.since_input = 0.0;
+            } else {
+                self.since_input += h;
+            }
+            self.feedforward = approach(self.feedforward, pilot_rate, accel);
+            self.target = wrap_pi(self.target + self.feedforward * h);
+            self.hold = v.heading;
+        } else {
+            self.since_input += h;
+            self.feedforward = 0.0;
+            self.target = self.hold;
+        }
+        let desired = self.feedforward + g.angle_p * wrap_pi(self.target - v.heading);
+        let k = if g.filter_hz > 0.0 {
+            let rc = 1.0 / (std::f64::consts::TAU * g.filter_hz);
+            h / (h + rc)
+        } else {
+            1.0
+        };
+        self.rate_target += k * (desired - self.rate_target);
+        let error = self.rate_target - v.yaw_rate;
+        self.integrator = (self.integrator + g.rate_i * error * h).clamp(-g.rate_imax, g.rate_imax);
+        self.out = (g.rate_p * error + self.integrator).clamp(-1.0, 1.0);
     }
 }
 

@@ -31,7 +31,7 @@ fn stamp(k: u64) -> Stamp {
             StepStatus::Running
         },
     )
-    .timed(7, 5_000_000_123 + k)
+    .timed(7, 5_000_000_123 + k as i64)
 }
 
 /// Numbers that test the exact round trip: not short in decimal, tiny, negative zero, and one

@@ -1,5 +1,5 @@
 //! `yaw-behaviour`: keeps the cable aligned with the image's vertical (Theta) by learning the yaw
-//! policy online. Everything is the `behaviour` crate's, for the yaw DOF; `--help` lists the flags.
+//! policy online. Everything is the crate's library, for the yaw DOF; `--help` lists the flags.
 
 fn main() -> std::process::ExitCode {
     behaviour::main(config::Dof::Yaw)

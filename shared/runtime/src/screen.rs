@@ -77,8 +77,8 @@ pub enum Refusal {
     /// A later step with an earlier clock.
     ClockBack {
         seq: u64,
-        clock_ns: u64,
-        last_clock_ns: u64,
+        clock_ns: i64,
+        last_clock_ns: i64,
     },
     /// Arrived `late` after its epoch's pace allows.
     TooOld { seq: u64, late: Duration },
@@ -128,7 +128,7 @@ struct Last {
     epoch: u32,
     timed: bool,
     seq: u64,
-    clock_ns: u64,
+    clock_ns: i64,
     /// The epoch's offset (timed stamps): the smallest arrival minus stamp clock seen.
     offset_ns: i128,
     /// Steps accepted in the epoch.
@@ -177,7 +177,7 @@ impl Screen {
 
     /// Judges `stamp` arriving at `now_ns`; a refusal is counted and logged. Nothing is accepted
     /// until [`Screen::accept`].
-    pub fn check(&mut self, stamp: &Stamp, now_ns: u64) -> Verdict {
+    pub fn check(&mut self, stamp: &Stamp, now_ns: i64) -> Verdict {
         if let Some(earlier) = self.refused.flush(now_ns) {
             tracing::warn!(input = %self.input, refused = earlier, total = self.refused.total(), "stale or absurd stamps refused since the last warning");
         }
@@ -196,7 +196,7 @@ impl Screen {
         verdict
     }
 
-    fn judge(&mut self, stamp: &Stamp, now_ns: u64) -> Verdict {
+    fn judge(&mut self, stamp: &Stamp, now_ns: i64) -> Verdict {
         let seq = stamp.seq;
         let timed = stamp.is_timed();
         let offset = now_ns as i128 - stamp.clock_ns as i128;
@@ -266,8 +266,8 @@ impl Screen {
                     last_clock_ns: last.clock_ns,
                 });
             }
-            let periods =
-                (stamp.clock_ns - last.clock_ns) / self.limits.period.as_nanos().max(1) as u64;
+            let periods = stamp.clock_ns.abs_diff(last.clock_ns)
+                / self.limits.period.as_nanos().max(1) as u64;
             8u64.saturating_add(periods.saturating_mul(2))
         } else {
             MAX_UNTIMED_JUMP
@@ -301,7 +301,7 @@ impl Screen {
     }
 
     /// The epoch's offset once `stamp`, arriving at `now_ns`, is accepted.
-    fn offset_after(&self, stamp: &Stamp, now_ns: u64) -> i128 {
+    fn offset_after(&self, stamp: &Stamp, now_ns: i64) -> i128 {
         let offset = now_ns as i128 - stamp.clock_ns as i128;
         let known = self
             .last
@@ -319,7 +319,7 @@ impl Screen {
     }
 
     /// Makes `stamp` (judged [`Verdict::New`] at `now_ns`) the last accepted step.
-    pub fn accept(&mut self, stamp: &Stamp, now_ns: u64) {
+    pub fn accept(&mut self, stamp: &Stamp, now_ns: i64) {
         let timed = stamp.is_timed();
         let offset_ns = self.offset_after(stamp, now_ns);
         self.unsettled = None;
@@ -357,21 +357,21 @@ impl Screen {
 
     /// The arrival time (consumer's clock, ns) up to which the step accepted last is fresh:
     /// its clock plus the epoch's offset plus `max_age`; `None` for untimed stamps.
-    pub fn fresh_until(&self) -> Option<u64> {
+    pub fn fresh_until(&self) -> Option<i64> {
         let l = self.last.filter(|l| l.timed)?;
         Some(self.until(l.clock_ns, l.offset_ns))
     }
 
     /// [`Screen::fresh_until`] as it will be once `stamp` (judged new at `now_ns`) is accepted.
-    pub fn fresh_until_if_accepted(&self, stamp: &Stamp, now_ns: u64) -> Option<u64> {
+    pub fn fresh_until_if_accepted(&self, stamp: &Stamp, now_ns: i64) -> Option<i64> {
         stamp
             .is_timed()
             .then(|| self.until(stamp.clock_ns, self.offset_after(stamp, now_ns)))
     }
 
-    fn until(&self, clock_ns: u64, offset_ns: i128) -> u64 {
+    fn until(&self, clock_ns: i64, offset_ns: i128) -> i64 {
         let t = clock_ns as i128 + offset_ns + self.limits.max_age.as_nanos() as i128;
-        t.clamp(0, u64::MAX as i128) as u64
+        t.clamp(i64::MIN as i128, i64::MAX as i128) as i64
     }
 }
 
@@ -384,19 +384,20 @@ mod tests {
     use super::*;
     use messages::StepStatus;
 
-    const MS: u64 = 1_000_000;
-    const T0: u64 = 3_600_000 * MS;
+    const MS: i64 = 1_000_000;
+    const T0: i64 = 3_600_000 * MS;
 
     fn limits() -> ScreenLimits {
         ScreenLimits::control(0.2)
     }
 
-    fn stamp(epoch: u32, seq: u64, clock_ns: u64) -> Stamp {
-        Stamp::new(seq, seq * 200 * MS, 0, seq as u32, StepStatus::Running).timed(epoch, clock_ns)
+    fn stamp(epoch: u32, seq: u64, clock_ns: i64) -> Stamp {
+        Stamp::new(seq, seq * 200_000_000, 0, seq as u32, StepStatus::Running)
+            .timed(epoch, clock_ns)
     }
 
     /// Feeds a step; accepts it when new.
-    fn feed(s: &mut Screen, st: Stamp, now: u64) -> Verdict {
+    fn feed(s: &mut Screen, st: Stamp, now: i64) -> Verdict {
         let v = s.check(&st, now);
         if v == Verdict::New {
             s.accept(&st, now);
@@ -473,12 +474,12 @@ mod tests {
         let mut s = Screen::new("t", limits());
         let mut now = T0;
         for seq in 1..=20 {
-            now = T0 + seq * 200 * MS;
+            now = T0 + seq as i64 * 200 * MS;
             assert_eq!(feed(&mut s, stamp(7, seq, now), now + MS), Verdict::New);
         }
         // More one-step epochs than are remembered, each followed by a forged step of the live one.
         for k in 0..(2 * EPOCHS_REMEMBERED as u32) {
-            let t = now + 10 * MS + u64::from(k) * MS;
+            let t = now + 10 * MS + i64::from(k) * MS;
             assert_eq!(feed(&mut s, stamp(100 + k, 1, t), t), Verdict::New);
             assert!(matches!(
                 feed(&mut s, stamp(7, 20 + (1 << 40), t), t),
@@ -495,7 +496,7 @@ mod tests {
             ));
         }
         for seq in 21..=25 {
-            let t = T0 + seq * 200 * MS;
+            let t = T0 + seq as i64 * 200 * MS;
             assert_eq!(
                 feed(&mut s, stamp(7, seq, t), t + MS),
                 Verdict::New,
@@ -536,6 +537,60 @@ mod tests {
         ));
     }
 
+    /// The machine was booted 1,403 s ago and the camera restarted with its clock an hour behind:
+    /// its readings lie below zero. The screen learns the epoch from its pace as for any clock behind,
+    /// judges its steps' age and order on the signed clock, and a stall of that epoch still stops it.
+    #[test]
+    fn a_producer_whose_clock_stepped_back_past_zero_is_followed_at_its_pace() {
+        let mut s = Screen::new("t", limits());
+        let up = 1_403_000 * MS;
+        let hour = 3_600_000 * MS;
+        feed(&mut s, stamp(7, 985, up - 200 * MS), up - 199 * MS);
+        let at = |k: i64| up + k * 200 * MS; // the consumer's clock when step k arrives
+        let taken = |k: i64| at(k) - hour - MS; // the camera's, an hour behind: below zero
+        assert!(taken(0) < 0);
+        assert!(matches!(
+            feed(&mut s, stamp(9, 986, taken(0)), at(0)),
+            Verdict::Refused(Refusal::TooOld { .. })
+        ));
+        for k in 1..50 {
+            assert_eq!(
+                feed(&mut s, stamp(9, 986 + k as u64, taken(k)), at(k)),
+                Verdict::New,
+                "step {k}, taken at {} ns",
+                taken(k)
+            );
+        }
+        assert_eq!(s.last(), Some((9, 1035)));
+        // Fresh until two periods after the fastest delivery, on the consumer's clock.
+        assert_eq!(s.fresh_until(), Some(at(49) + 400 * MS));
+        // A later step taken earlier, a step from the future, a stalled one: refused.
+        assert!(matches!(
+            feed(&mut s, stamp(9, 1036, taken(48)), at(50)),
+            Verdict::Refused(Refusal::ClockBack { .. })
+        ));
+        assert!(matches!(
+            feed(&mut s, stamp(9, 1036, taken(50) + 2_000 * MS), at(50)),
+            Verdict::Refused(Refusal::Ahead { .. })
+        ));
+        assert!(matches!(
+            feed(&mut s, stamp(9, 1036, taken(50)), at(50) + 1_000 * MS),
+            Verdict::Refused(Refusal::TooOld { .. })
+        ));
+        // A stamp stuck at one reading (no pace) is never taken for a live clock.
+        let mut s = Screen::new("t", limits());
+        feed(&mut s, stamp(7, 985, up - 200 * MS), up - 199 * MS);
+        for k in 0..10 {
+            assert!(
+                matches!(
+                    feed(&mut s, stamp(11, 986 + k as u64, 1), at(k)),
+                    Verdict::Refused(Refusal::TooOld { .. })
+                ),
+                "step {k}"
+            );
+        }
+    }
+
     /// A consumer restarted behind its input reads a backlog at once: the stale steps are refused,
     /// and the fresh steps after them are accepted, never refused as ahead of the backlog's pace.
     #[test]
@@ -552,7 +607,7 @@ mod tests {
             );
         }
         for k in 4..10u64 {
-            let taken = now + (k - 3) * 200 * MS;
+            let taken = now + (k as i64 - 3) * 200 * MS;
             assert_eq!(
                 feed(&mut s, stamp(7, k, taken), taken + MS),
                 Verdict::New,

@@ -1,4 +1,4 @@
-//! The fault drill (`mesh-bench drill`, `scripts/fault-drill`): the vehicle mesh against the twin
+//! The fault drill (`fault-drill`, `scripts/fault-drill`): the vehicle mesh against the twin
 //! under the supervisor at the vehicle's 5 Hz, and, in one run, every fault the vehicle's safety
 //! layer is there for, with what reached the twin's thrusters as the evidence:
 //!
@@ -20,11 +20,14 @@
 //!
 //! Afterwards the supervisor is stopped (SIGTERM) and the drill counts panics in the services' logs,
 //! processes left running, shared-memory files left, and trials missing from the monitor's record.
+//!
+//! How it starts a mesh and watches it (step one in brief, a supervisor's process, a node of its
+//! own) is the mesh benchmark's (`mesh_bench`), used as it is.
 
-use crate::probe;
-use crate::runs::{brief_step_one, spawn};
 use anyhow::{Context, Result, bail};
 use iceoryx2::prelude::*;
+use mesh_bench::probe;
+use mesh_bench::runs::{VehicleRunSetup, spawn};
 use messages::{
     CableObservationData, CableObservationMsg, CameraFrameHeader, DofCommand, Endpoint,
     FrameOutbox, LearningStats, Outbox, Stamp, StepStatus, topics,
@@ -53,13 +56,8 @@ const ROGUE: u64 = 0xBAD0_0000_0000_0000;
 /// What to run.
 #[derive(Clone, Debug)]
 pub struct DrillSetup {
-    pub bin_dir: PathBuf,
-    pub config_dir: PathBuf,
-    pub sim_mesh: PathBuf,
-    pub vehicle_mesh: PathBuf,
+    pub run: VehicleRunSetup,
     pub kills: u32,
-    pub seed: u64,
-    pub sim_episodes: u32,
     pub period_s: f64,
     /// Where to keep the vehicle mesh's log (every service's output), if anywhere.
     pub keep_log: Option<PathBuf>,
@@ -257,47 +255,28 @@ pub fn run(setup: &DrillSetup) -> Result<DrillReport> {
     let started = Instant::now();
     let ns = Namespace::new("fd");
     let scratch = ns.scratch();
-    let step_one = brief_step_one(
-        &ns,
-        &setup.bin_dir,
-        &setup.sim_mesh,
-        &setup.config_dir,
-        setup.seed,
-        setup.sim_episodes,
-        "fault-drill",
-    )?;
+    let step_one = setup.run.step_one(&ns, "fault-drill")?;
 
     // The vehicle mesh, with many trials: the drill stops it when done.
     let offset_file = scratch.join("camera-clock-offset-ms");
     let record = scratch.join("step-two/run.json");
-    let args = supervisor::command_line(
-        &setup.vehicle_mesh,
-        Some(&setup.config_dir),
-        setup.seed,
-        &ns.iox,
-        &[
-            ("trials", "1000".into()),
-            ("pacing", "--speed=1".into()),
-            ("initial", step_one.display().to_string()),
-            ("state", scratch.join("step-two").display().to_string()),
-            ("json", record.display().to_string()),
-            (
-                "trace",
-                scratch.join("step-two/trace.jsonl").display().to_string(),
-            ),
-        ],
-    );
+    let sets = [
+        ("trials", "1000".into()),
+        ("pacing", "--speed=1".into()),
+        ("initial", step_one.display().to_string()),
+        ("state", scratch.join("step-two").display().to_string()),
+        ("json", record.display().to_string()),
+        (
+            "trace",
+            scratch.join("step-two/trace.jsonl").display().to_string(),
+        ),
+    ];
     let log = scratch.join("vehicle.log");
-    let mut sup = spawn(
-        "supervisor (vehicle)",
-        &setup.bin_dir.join("supervisor"),
-        &args,
-        &[(
-            runtime::clock::OFFSET_FILE_ENV,
-            offset_file.display().to_string(),
-        )],
-        log.clone(),
-    )?;
+    let offset = [(
+        runtime::clock::OFFSET_FILE_ENV,
+        offset_file.display().to_string(),
+    )];
+    let mut sup = setup.run.start_vehicle(&ns, &sets, &offset, log.clone())?;
     let seen = Arc::new(Seen::default());
     let stop = Arc::new(AtomicBool::new(false));
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
@@ -364,7 +343,7 @@ fn drill(
         kills: setup.kills,
         ..Default::default()
     };
-    let mut choices = Choices(setup.seed);
+    let mut choices = Choices(setup.run.seed);
     let mut missed = Vec::new();
     let mut restart_ms = Vec::new();
     let mut by_service = std::collections::BTreeMap::<&str, u32>::new();
@@ -372,7 +351,7 @@ fn drill(
     // 1. Kills. A service is killed again only after the supervisor's restart window: a crash loop
     // is the supervisor's to stop (it backs off, then gives up), not what the drill measures.
     let window = Duration::from_secs_f64(
-        supervisor::MeshFile::load(&setup.vehicle_mesh)?
+        supervisor::MeshFile::load(&setup.run.files.vehicle_mesh)?
             .restart
             .window_s,
     );
@@ -459,12 +438,12 @@ fn drill(
     // 3. A second allocator.
     let mut second = spawn(
         "second allocator",
-        &setup.bin_dir.join("thruster-allocator"),
+        &setup.run.bin_dir.join("thruster-allocator"),
         &[
             "--endpoint".into(),
             "vehicle".into(),
             "--config".into(),
-            setup.config_dir.display().to_string(),
+            setup.run.files.config.display().to_string(),
         ],
         &ns.env()
             .iter()
@@ -563,8 +542,8 @@ fn rogue(ns: &Namespace, seen: &Seen, period_s: f64) -> Result<(u64, Vec<u64>, V
     // Stamps: (bad stamp?, stamp)
     let mut stamps = |k: u64| -> Vec<(bool, Stamp)> {
         let now = clock.now_ns();
-        let period = (period_s * 1e9) as u64;
-        let base = |seq: u64, epoch: u32, clock_ns: u64, m: u64| {
+        let period = (period_s * 1e9) as i64;
+        let base = |seq: u64, epoch: u32, clock_ns: i64, m: u64| {
             Stamp::new(seq, m, live.episode, live.step, StepStatus::Running).timed(epoch, clock_ns)
         };
         let mut next = || {
