@@ -5,13 +5,13 @@
 
 use adapters::replay::{Pacing, ReplaySource};
 use adapters::twin::TwinFrameSource;
-use adapters::{Frame, FrameSource, Wake};
+use adapters::{AdapterError, Frame, FrameSource, Wake};
 use camera::SimCamera;
 use camera::vehicle::{Publish, SeqMap, SourceSpec, VehicleCamera};
 use clap::Parser;
 use config::Eyes;
 use messages::{Endpoint, topics};
-use runtime::{CommonArgs, Flow, Input, Runtime, Timer};
+use runtime::{CommonArgs, Flow, Input, Runtime, Tally, Timer};
 use std::convert::Infallible;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -111,12 +111,21 @@ fn serve_vehicle(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     tracing::info!(source = %source.describe(), epoch = camera.epoch(), "ready");
     let mut frame = Frame::default();
     let mut last_frame = Instant::now();
+    let mut refusals = Tally::default();
     rt.serve_inputs(&inputs, timer, |_| {
         // Every frame due now, in order: the mesh answers each step once.
         loop {
             let now = Instant::now();
             let read = match source.read(now, &mut frame) {
                 Ok(r) => r,
+                Err(e @ AdapterError::BadPacket { .. }) => {
+                    // Refused packets come in bursts (garbage on the port, another stream): said
+                    // once, then at most every few seconds with the count since, never per packet.
+                    if let Some(earlier) = refusals.count(clock.now_ns()) {
+                        tracing::warn!(source = %source.describe(), reports_not_logged = earlier, "{e}");
+                    }
+                    continue;
+                }
                 Err(e) => {
                     // A broken frame is skipped; the vehicle's loop goes on with the next.
                     tracing::warn!(source = %source.describe(), "frame skipped: {e}");

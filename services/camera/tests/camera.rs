@@ -278,3 +278,106 @@ fn an_rtp_source_needs_the_video_feature() {
         "a clear error:\n{log}"
     );
 }
+
+/// GStreamer's `videotestsrc ! x264enc ! rtph264pay ! udpsink`, as BlueOS sends, for `frames`
+/// frames at 30 frames/s of `w x h`, under `ssrc`: the child reaped when it is done.
+#[cfg(feature = "video")]
+fn gst_sender(port: u16, ssrc: u32, (w, h): (u32, u32), frames: u32) -> std::process::Child {
+    std::process::Command::new("gst-launch-1.0")
+        .args(["-q", "videotestsrc", "is-live=true", "pattern=ball"])
+        .arg(format!("num-buffers={frames}"))
+        .args([
+            "!",
+            &format!("video/x-raw,width={w},height={h},framerate=30/1"),
+        ])
+        .args(["!", "x264enc", "tune=zerolatency", "speed-preset=ultrafast"])
+        .args(["key-int-max=15", "bitrate=1500"])
+        .args(["!", "rtph264pay", "pt=96", "config-interval=-1"])
+        .arg(format!("ssrc={ssrc}"))
+        .args(["aggregate-mode=zero-latency"])
+        .args(["!", "udpsink", "host=127.0.0.1", &format!("port={port}")])
+        .stdin(std::process::Stdio::null())
+        .spawn()
+        .expect("gst-launch-1.0 (scripts/install-gstreamer)")
+}
+
+/// The camera on a bad stream, GStreamer's own elements sending: a stream with a burst of garbage
+/// amid it, its stop, a restart under a new SSRC at another size. The camera keeps running, says what happened
+/// once per event (not once per packet), and publishes the restarted stream's frames.
+#[cfg(feature = "video")]
+#[test]
+fn on_a_bad_rtp_stream_the_camera_says_so_once_per_event_and_picks_it_up_again() {
+    let ns = Namespace::new("camb");
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .expect("a free port")
+        .port();
+    let probe = testkit::probe(&ns, Endpoint::Vehicle);
+    let inbox = probe.frame_inbox();
+    let source = format!("rtp:127.0.0.1:{port}");
+    let mut camera = Process::start(
+        &ns,
+        &testkit::binary("camera"),
+        &["--endpoint", "vehicle", "--source", &source],
+    );
+    // The camera publishes once its socket listens. A publisher's arrival is not an event: look
+    // again every few milliseconds, up to the deadline.
+    let end = Instant::now() + T;
+    while inbox.publishers() == 0 {
+        assert!(
+            Instant::now() < end,
+            "the camera never came up\n{}",
+            camera.log()
+        );
+        let _ = probe.node().wait(Duration::from_millis(5));
+    }
+    for (round, (ssrc, size)) in [(0x1111_u32, (640, 480)), (0x2222, (1280, 720))]
+        .into_iter()
+        .enumerate()
+    {
+        let mut sender = gst_sender(port, ssrc, size, 45);
+        let (h, image) = wait_frame(&probe, &inbox, T, |h| !h.is_damaged())
+            .unwrap_or_else(|| panic!("round {round}: no whole frame\n{}", camera.log()));
+        assert_eq!((h.width, h.height, image.len()), (320, 240, 320 * 240));
+        if round == 0 {
+            // Garbage amid the stream: not RTP, truncated, another payload type.
+            let junk = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+            for k in 0..300 {
+                let bad: &[u8] = match k % 3 {
+                    0 => b"not rtp at all",
+                    1 => &[0x80, 96, 0],
+                    _ => &[0x80, 33, 0, 1, 0, 0, 0, 0, 0, 0, 0, 9, 0x65],
+                };
+                junk.send_to(bad, ("127.0.0.1", port)).unwrap();
+            }
+        }
+        let done = sender.wait().expect("gst-launch-1.0 ends");
+        assert!(done.success(), "round {round}: the sender failed");
+        // The stream stopped: the camera notes it once after its quiet time (2 s).
+        let end = Instant::now() + T;
+        while camera.log().matches("the stream stopped").count() <= round {
+            assert!(
+                Instant::now() < end,
+                "round {round}: the stop never noted\n{}",
+                camera.log()
+            );
+            // The camera's log is its stderr, read as it grows: a wait on a frame that never
+            // comes is the deadline's pace here.
+            let _ = wait_frame(&probe, &inbox, Duration::from_millis(200), |_| false);
+        }
+        assert!(camera.is_running(), "round {round}\n{}", camera.log());
+    }
+    let log = camera.log();
+    let count = |s: &str| log.matches(s).count();
+    assert_eq!(count("the stream stopped"), 2, "{log}");
+    assert_eq!(count("a new stream session"), 2, "{log}");
+    assert_eq!(count("the stream's picture size changed"), 1, "{log}");
+    // 300 refused packets within a fraction of a second: reported once, not per packet.
+    let refused = log.lines().filter(|l| l.contains("refused")).count();
+    assert!(
+        (1..=2).contains(&refused),
+        "{refused} lines about refused packets\n{log}"
+    );
+    assert!(!log.contains("panicked"), "{log}");
+    camera.terminate(T);
+}

@@ -4,6 +4,7 @@
 //!   our source: frames of the camera's size, one per step, the newest;
 //! - our sender into GStreamer's own receiver (`udpsrc ! rtph264depay ! avdec_h264`);
 //! - a stream that stops, comes back with a new SSRC at another size, with garbage between;
+//! - GStreamer's own encoder and payloader changing the picture size within one SSRC;
 //! - 1% packet loss: every frame that lost data, or references one that did, is flagged damaged;
 //! - every access unit handed out as received, for a recorder.
 //!
@@ -442,4 +443,72 @@ fn access_units_are_handed_out_as_received() {
     }
     assert_eq!(sender.stats().keyframes, 3);
     assert_eq!(source.stats().tap_lost, 0);
+}
+
+/// GStreamer's own encoder and payloader (`appsrc ! x264enc ! rtph264pay ! udpsink`, one SSRC)
+/// change the picture size mid-stream, as a camera switching modes does: one session throughout,
+/// the change noted once, every frame before and after handed over whole at the camera's size.
+#[test]
+fn a_resolution_change_within_one_ssrc_is_followed() {
+    gst::init().unwrap();
+    let source = loopback_source(320, 240, Duration::from_secs(2));
+    let port = source.local_addr().port();
+    let (w, h) = (320u32, 240u32);
+    let pipeline = gst::parse::launch(&format!(
+        "appsrc name=src is-live=true format=time do-timestamp=false \
+           caps=video/x-raw,format=GRAY8,width={w},height={h},framerate=5/1 \
+         ! videoscale ! videoconvert ! capsfilter name=size caps=video/x-raw,format=I420,width=640,height=480 \
+         ! x264enc tune=zerolatency speed-preset=ultrafast bitrate=1000 key-int-max=10 \
+         ! rtph264pay pt=96 ssrc=305419896 config-interval=-1 aggregate-mode=zero-latency \
+         ! udpsink host=127.0.0.1 port={port} sync=false"
+    ))
+    .unwrap()
+    .downcast::<gst::Pipeline>()
+    .unwrap();
+    let appsrc = pipeline
+        .by_name("src")
+        .unwrap()
+        .downcast::<gst_app::AppSrc>()
+        .unwrap();
+    let size = pipeline.by_name("size").unwrap();
+    pipeline.set_state(gst::State::Playing).unwrap();
+    let mut frame = Frame::default();
+    let mut got = 0;
+    for k in 0..12u64 {
+        if k == 6 {
+            size.set_property(
+                "caps",
+                gst::Caps::builder("video/x-raw")
+                    .field("format", "I420")
+                    .field("width", 480i32)
+                    .field("height", 272i32)
+                    .build(),
+            );
+        }
+        let mut buffer = gst::Buffer::from_slice(cable_image(w, h, 100 + 10 * k as u32));
+        {
+            let b = buffer.get_mut().unwrap();
+            b.set_pts(gst::ClockTime::from_mseconds(200 * k));
+            b.set_duration(gst::ClockTime::from_mseconds(200));
+        }
+        appsrc.push_buffer(buffer).unwrap();
+        match read_next(&source, &mut frame, WITHIN) {
+            Some(Ok(Read::Frame)) => {
+                assert_eq!(frame.image.len(), (w * h) as usize, "frame {k}");
+                assert!(!frame.meta.damaged, "frame {k}: nothing lost on loopback");
+                got += 1;
+            }
+            other => panic!("frame {k}: {other:?}, {:?}", source.stats()),
+        }
+    }
+    pipeline.set_state(gst::State::Null).unwrap();
+    let s = source.stats();
+    assert_eq!(got, 12);
+    assert_eq!(s.stream.sessions, 1, "one SSRC, one session: {s:?}");
+    assert_eq!(s.picture, Some((480, 272)), "the new size decoded");
+    assert_eq!(s.picture_changes, 1, "the change noted once");
+    assert_eq!(
+        (s.stream.lost, s.stream.refused, s.stream.damaged),
+        (0, 0, 0)
+    );
 }
