@@ -309,8 +309,14 @@ fn main() -> ExitCode {
             .unwrap_or_else(|| rt.config_dir().join("twin.toml"));
         let mut params: TwinParams = config::load(&path)?;
         if !args.params.is_empty() {
-            params.autopilot.params.extend(args.params.iter().cloned());
-            config::Validate::validate(&params.autopilot, "--param")
+            let Some(autopilot) = params.autopilot.as_mut() else {
+                anyhow::bail!(
+                    "--param: {} has no [autopilot] section: this twin stands in for no autopilot",
+                    path.display()
+                );
+            };
+            autopilot.params.extend(args.params.iter().cloned());
+            config::Validate::validate(&*autopilot, "--param")
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
             tracing::info!(params = ?args.params, "autopilot parameters set on the command line");
         }
