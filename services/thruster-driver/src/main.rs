@@ -61,7 +61,18 @@ fn open_sink(rt: &Runtime, spec: &SinkSpec) -> anyhow::Result<Box<dyn ThrusterSi
             let publishers = Publishers::open(rt.node(), rt.endpoint(), move || clock.now_ns())?;
             let layout = ThrusterLayout::new(&rt.scenario().thrusters);
             // Under a `[pilot]` the commands go out as step one's model of the sticks assumes.
+            // A spec naming another mode (the bench check's MANUAL) flies as it says, in plain thrust.
             let spec = match &rt.scenario().pilot {
+                Some(pilot)
+                    if spec.mode_named && ardusub::Mode::from(pilot.mode) != spec.options.mode =>
+                {
+                    tracing::warn!(
+                        mode = spec.options.mode.name(),
+                        pilot = pilot.mode.name(),
+                        "the sink's mode is not the scenario's [pilot] mode: commands go out as plain thrust, not as step one's model of the sticks"
+                    );
+                    (**spec).clone()
+                }
                 Some(pilot) => (**spec)
                     .clone()
                     .with_pilot(pilot)
