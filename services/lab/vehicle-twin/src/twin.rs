@@ -952,7 +952,10 @@ mod tests {
             let n = a.len().min(b.len()) - 1; // a trial's last frame is never dropped
             assert_eq!(a[..n], b[..n], "trial {k}");
         }
-        assert_ne!(trials[0][..50], trials[1][..50]);
+        // A trial that loses the cable ends early: the two compared over what both have.
+        let n = trials[0].len().min(trials[1].len()).min(50);
+        assert!(n > 0);
+        assert_ne!(trials[0][..n], trials[1][..n]);
         assert!(trials[0].iter().any(|f| f.1), "frames are dropped");
     }
 

@@ -403,8 +403,8 @@ mod tests {
             (Channel::SwayCommand, Key::EachStep(stamp)),
             (Channel::YawLearning, Key::Stamped(stamp)),
             (Channel::Events, Key::Seq(2)),
-            (Channel::AutopilotState, Key::Seq(77)),
-            (Channel::StatusText, Key::Seq(78)),
+            (Channel::AutopilotState, Key::Seq(77 ^ (1 << 63))),
+            (Channel::StatusText, Key::Seq(78 ^ (1 << 63))),
         ];
         for (item, (channel, key)) in items.iter().zip(want) {
             assert_eq!((item.channel(), item.key()), (channel, Some(key)));
