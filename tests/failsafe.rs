@@ -219,7 +219,8 @@ fn when_the_commands_stop_the_thrusters_stop_at_the_deadline() {
     let after = stop.at.duration_since(taken);
     assert!(
         after >= deadline() - Duration::from_millis(5) && after <= deadline() + WAKE_MARGIN,
-        "zero thrust {after:?} after the last step was taken, the deadline is {deadline():?}"
+        "zero thrust {after:?} after the last step was taken, the deadline is {:?}",
+        deadline()
     );
     // Commands again: the thrusters are driven again.
     rig.step(&[&driver, &allocator]);
