@@ -97,7 +97,7 @@ pub enum Arming {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Options {
     /// This companion's MAVLink system id: ArduSub takes MANUAL_CONTROL only from its ground
-    /// stations' ids (see the README), and 255 is the ground station's own.
+    /// stations' ids (see this crate's README), and 255 is the ground station's own.
     pub system: u8,
     pub component: u8,
     /// MANUAL_CONTROL messages per second.
