@@ -3,7 +3,7 @@
 //! closes most of the gap between the simulation policy and the twin's limit and leaves no seed worse
 //! than it found it; the limit search finds the LQR gain where the gap is off.
 //!
-//! Ideal perception (the camera's exact line and rates) keeps these tests to seconds; the README's
+//! Ideal perception (the camera's exact line and rates) keeps these tests to seconds; docs/results.md's
 //! benchmark (`trainer --eyes images step-two-bench`) runs the same with images and perception in
 //! the loop, as on the vehicle.
 
