@@ -174,7 +174,6 @@ impl SeedResult {
         )
     }
 
-    /// Whether the row's limit is below a policy it evaluated beyond the noise.
     /// The session's evaluation whose pair is the final one (the last evaluation's, or the best
     /// one it restored), with the row's J_after its returns.
     pub fn final_pair(&self) -> Option<&CurvePoint> {
@@ -187,6 +186,7 @@ impl SeedResult {
         })
     }
 
+    /// Whether the row's limit is below a policy it evaluated beyond the noise.
     pub fn limit_is_beaten(&self) -> bool {
         self.limit_beaten.sway.is_some() || self.limit_beaten.yaw.is_some()
     }
