@@ -241,7 +241,6 @@ fn step_two_closes_the_gap_on_the_harsh_twin_and_never_leaves_a_seed_worse() {
     }
     assert_eq!(verdict.lost, 0, "no trial loses the cable");
     assert_no_pair_ends_worse(&s, &results);
-    assert_the_final_pair_was_evaluated_together(&results);
     assert_every_limit_is_a_limit(&results);
     assert_the_final_pair_was_evaluated_together(&results);
 }
@@ -274,7 +273,6 @@ fn no_trial_loses_the_cable_on_the_harsh_twin_with_a_cross_current() {
     }
     assert_eq!(verdict.lost, 0);
     assert_every_limit_is_a_limit(&results);
-    assert_the_final_pair_was_evaluated_together(&results);
     for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
         // The published benchmark (12 seeds, ideal perception): median gap closed 58% for yaw
         // (seeds -4% to 90%) and 99% for sway (66% to 236%). The lowest median any 8 of those 12
