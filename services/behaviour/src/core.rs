@@ -8,12 +8,14 @@
 //!
 //! A behaviour built [`Behaviour::for_step_two`] runs step two's protocol on top (see
 //! [`crate::step_two`]): each trial is a learning or an evaluation trial, every actor update passes
-//! the safety guard, and each evaluation is judged against the best policy so far.
+//! the safety guard, and each evaluation is judged against the best pair of policies so far, on the
+//! pair's cost it sums from the observations both behaviours get ([`learning::state_costs`]), so that
+//! the sway and yaw behaviours keep and restore the policies of one and the same evaluation.
 
 use crate::step_two::{SAFETY_ENVELOPE, StepTwo, TrialKind, guard};
-use config::{Dof, LearningParams, Scenario};
+use config::{Dof, LearningParams, PerDof, QuadraticCost, Scenario};
 use learning::lqr::LqrError;
-use learning::{Agent, AgentState, Algorithm, EpisodeSummary, Verdict};
+use learning::{Agent, AgentState, Algorithm, EpisodeSummary, Evaluated, Verdict, state_costs};
 use messages::{CableObservationMsg, DofCommand, LearningStats, Stamp, StepStatus};
 use model::CableObservation;
 
@@ -114,6 +116,10 @@ pub struct Behaviour {
     /// Step two: the best policy was restored in this learning trial because the DOF's state left
     /// the safety envelope; the trial goes on with it, without learning.
     recovering: bool,
+    /// Step two: both DOFs' rewards (the scenario's), whose state costs make the pair's cost.
+    rewards: Option<PerDof<QuadraticCost>>,
+    /// Step two: the last evaluation judged, the trial that closed it and the pair's score there.
+    judged: Option<(u32, f64)>,
 }
 
 impl Behaviour {
@@ -125,6 +131,8 @@ impl Behaviour {
             step_two: None,
             kind: TrialKind::Learning,
             recovering: false,
+            rewards: None,
+            judged: None,
         }
     }
 
@@ -144,12 +152,23 @@ impl Behaviour {
             step_two: Some(step_two),
             kind: TrialKind::Learning,
             recovering: false,
+            rewards: Some(PerDof {
+                sway: scenario.reward.sway,
+                yaw: scenario.reward.yaw,
+            }),
+            judged: None,
         })
     }
 
     /// Step two's protocol, if the behaviour runs it.
     pub fn step_two(&self) -> Option<&StepTwo> {
         self.step_two.as_ref()
+    }
+
+    /// The pair's score ([`learning::pair_score`]) of the evaluation closed by trial `trial`, when
+    /// this behaviour judged it.
+    pub fn pair_score(&self, trial: u32) -> Option<f64> {
+        self.judged.filter(|(t, _)| *t == trial).map(|(_, s)| s)
     }
 
     /// What the current trial is for.
@@ -213,6 +232,20 @@ impl Behaviour {
         if status == StepStatus::Running && obs.found {
             self.guard_envelope(&obs, msg.stamp.episode);
         }
+        if let Some(rewards) = &self.rewards
+            && obs.found
+            && self.kind.is_evaluation()
+        {
+            // The pair's cost, from what both behaviours see alike.
+            let states = PerDof {
+                sway: obs.state(Dof::Sway),
+                yaw: obs.state(Dof::Yaw),
+            };
+            let step = state_costs(rewards, states);
+            let sum = &mut self.agent.safety_mut().evaluation_cost;
+            sum.sway += step.sway;
+            sum.yaw += step.yaw;
+        }
         let (action, episode) = behave(&mut self.agent, &obs, status);
         Output {
             command: DofCommand {
@@ -257,7 +290,8 @@ impl Behaviour {
                 safety.evaluation_sum,
                 safety.evaluation_trials,
                 safety.evaluation_lost,
-            ) = (0.0, 0, 0);
+                safety.evaluation_cost,
+            ) = (0.0, 0, 0, PerDof::default());
         }
         self.agent.set_learning(learning);
         self.agent.reseed(seed);
@@ -283,17 +317,33 @@ impl Behaviour {
         safety.evaluation_lost += episode.failed as u32;
         let (mut evaluated, mut rolled_back) = (f64::NAN, false);
         if closes {
-            let (sum, n) = (safety.evaluation_sum, safety.evaluation_trials);
+            let (sum, n, cost) = (
+                safety.evaluation_sum,
+                safety.evaluation_trials,
+                safety.evaluation_cost,
+            );
             if n == wanted {
                 evaluated = sum / n as f64;
-                rolled_back = self.judge(judge, evaluated, stamp.episode);
+                let e = Evaluated {
+                    trial: stamp.episode,
+                    gain: self.agent.gain(),
+                    evaluated,
+                    cost: PerDof {
+                        sway: cost.sway / n as f64,
+                        yaw: cost.yaw / n as f64,
+                    },
+                };
+                rolled_back = self.judge(judge, &e);
+                let scale = self.agent.safety().scale;
+                self.judged = Some((e.trial, learning::pair_score(e.cost, scale)));
             }
             let safety = self.agent.safety_mut();
             (
                 safety.evaluation_sum,
                 safety.evaluation_trials,
                 safety.evaluation_lost,
-            ) = (0.0, 0, 0);
+                safety.evaluation_cost,
+            ) = (0.0, 0, 0, PerDof::default());
             if n != wanted {
                 tracing::warn!(
                     dof = %self.dof(),
@@ -311,12 +361,12 @@ impl Behaviour {
         stats
     }
 
-    /// Judges the policy evaluated at `evaluated`; returns whether the best one was restored.
-    fn judge(&mut self, judge: learning::KeepBest, evaluated: f64, trial: u32) -> bool {
-        let gain = self.agent.gain();
-        match judge.judge(self.agent.safety_mut(), gain, evaluated) {
+    /// Judges the pair evaluated in `e`; returns whether the best pair's policy was restored.
+    fn judge(&mut self, judge: learning::KeepBest, e: &Evaluated) -> bool {
+        let (gain, evaluated, trial, cost) = (e.gain, e.evaluated, e.trial, e.cost);
+        match judge.judge(self.agent.safety_mut(), e) {
             Verdict::Best => {
-                tracing::info!(dof = %self.dof(), trial, ?gain, evaluated, "evaluation: the best policy so far");
+                tracing::info!(dof = %self.dof(), trial, ?gain, evaluated, ?cost, "evaluation: the best pair so far");
                 false
             }
             Verdict::Kept { best } => {
@@ -325,8 +375,10 @@ impl Behaviour {
                     trial,
                     ?gain,
                     evaluated,
+                    ?cost,
                     best = best.evaluated,
-                    "evaluation: not better than the best, within the tolerance"
+                    best_trial = best.trial,
+                    "evaluation: the pair is not better than the best, within the tolerance"
                 );
                 false
             }
@@ -336,9 +388,11 @@ impl Behaviour {
                     trial,
                     ?gain,
                     evaluated,
+                    ?cost,
                     best = best.evaluated,
                     best_gain = ?best.gain,
-                    "evaluation: worse than the best policy beyond the tolerance; the best is restored"
+                    best_trial = best.trial,
+                    "evaluation: the pair is worse than the best pair beyond the tolerance; the best pair's policy is restored"
                 );
                 self.agent.restore(best.gain);
                 true
@@ -558,6 +612,117 @@ mod tests {
         trial(&mut b, &mut seq, 2, 5, StepStatus::TimeLimit, calm);
         trial(&mut b, &mut seq, 3, 5, StepStatus::TimeLimit, calm);
         assert!(b.agent().is_learning());
+    }
+
+    /// Step two for `dof` with one evaluation trial and one learning trial in turn, gains moving at
+    /// every step, the default rollback.
+    fn step_two_of(dof: Dof) -> Behaviour {
+        let (scenario, mut learning) = params();
+        learning.evaluation = config::EvaluationParams {
+            trials: 1,
+            learning_trials: 1,
+        };
+        learning.gpomdp.alpha = PerDof::both(1.0);
+        learning.safety.stability.enabled = false;
+        let agent = new_agent(dof, Algorithm::Gpomdp, &scenario, &learning, 5);
+        Behaviour::for_step_two(agent, StepTwo::new(&learning, true, 5, 6), &scenario).unwrap()
+    }
+
+    /// Trial `episode`: 30 steps of a cable off by `a` in x_g and `b` in Theta.
+    fn offset_trial(episode: u32, seq: &mut u64, (a, b): (f64, f64)) -> Vec<CableObservationMsg> {
+        (0..=30)
+            .map(|step| {
+                let status = if step == 30 {
+                    StepStatus::TimeLimit
+                } else {
+                    StepStatus::Running
+                };
+                let mut o = obs(*seq, episode, step, status, step != 7);
+                let t = step as f64;
+                o.observation.x_g = a * (0.4 * t).cos();
+                o.observation.theta = b * (0.3 * t).sin();
+                *seq += 1;
+                o
+            })
+            .collect()
+    }
+
+    /// The sway and yaw behaviours, each with its own returns and gains, judge the pair on the same
+    /// observations: after every evaluation both keep the same evaluation as the best, and restore
+    /// its policies together. A behaviour restarted from its checkpoint between trials goes on as
+    /// if it had not stopped.
+    #[test]
+    fn both_behaviours_keep_the_pair_of_one_evaluation_through_a_restart() {
+        let (scenario, _) = params();
+        let (mut sway, mut yaw, mut yaw_restarted) = (
+            step_two_of(Dof::Sway),
+            step_two_of(Dof::Yaw),
+            step_two_of(Dof::Yaw),
+        );
+        // Evaluations (even trials) of varying pair costs; learning trials in between.
+        let offsets = [
+            (0.2, 0.3),
+            (0.1, 0.1),
+            (0.1, 0.35),
+            (0.2, 0.2),
+            (0.3, 0.4),
+            (0.1, 0.1),
+            (0.05, 0.25),
+            (0.1, 0.1),
+            (0.22, 0.4),
+        ];
+        let (mut seq, mut bests, mut verdicts) = (0, Vec::new(), Vec::new());
+        for (trial, &offset) in offsets.iter().enumerate() {
+            if trial == 4 {
+                // The restart: the checkpoint, then a new behaviour resumed from it.
+                let state = yaw_restarted.checkpoint();
+                let agent = Agent::from_state(state, 5).unwrap();
+                let (_, mut learning) = params();
+                learning.evaluation = config::EvaluationParams {
+                    trials: 1,
+                    learning_trials: 1,
+                };
+                let s = StepTwo::new(&learning, true, 5, 6);
+                yaw_restarted = Behaviour::for_step_two(agent, s, &scenario).unwrap();
+            }
+            let mut closed = None;
+            for m in offset_trial(trial as u32, &mut seq, offset) {
+                let (s, y) = (sway.step(&m), yaw.step(&m));
+                yaw_restarted.step(&m);
+                closed = closed.or(s.stats.zip(y.stats));
+            }
+            let (s, y) = closed.expect("the trial ended");
+            if trial % 2 == 0 {
+                let (bs, by) = (sway.agent().safety().best, yaw.agent().safety().best);
+                let (bs, by) = (bs.unwrap(), by.unwrap());
+                assert_eq!(bs.trial, by.trial, "trial {trial}");
+                assert_eq!(bs.cost, by.cost);
+                assert_ne!(bs.evaluated, by.evaluated, "each has its own return");
+                assert_eq!(s.rolled_back, y.rolled_back);
+                let score = sway.pair_score(trial as u32).unwrap();
+                assert_eq!(
+                    score.to_bits(),
+                    yaw.pair_score(trial as u32).unwrap().to_bits()
+                );
+                if y.rolled_back == 1 {
+                    assert_eq!(
+                        (sway.agent().gain(), yaw.agent().gain()),
+                        (bs.gain, by.gain)
+                    );
+                }
+                bests.push(bs.trial);
+                verdicts.push(y.rolled_back);
+            }
+            assert_eq!(
+                yaw_restarted.checkpoint(),
+                yaw.checkpoint(),
+                "trial {trial}"
+            );
+        }
+        // The pair's costs made new bests and rollbacks both.
+        assert_eq!(bests, vec![0, 2, 2, 6, 6]);
+        assert_eq!(verdicts, vec![0, 0, 1, 0, 1]);
+        assert_ne!(sway.agent().safety().scale, PerDof::default());
     }
 
     #[test]

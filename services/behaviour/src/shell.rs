@@ -42,7 +42,8 @@ pub struct Args {
     /// does not exist yet; this DOF's entry is used.
     #[arg(long, value_name = "FILE")]
     pub initial: Option<PathBuf>,
-    /// Save --checkpoint every N episodes (0: only at shutdown).
+    /// Save --checkpoint every N episodes (0: only at shutdown); with --step-two also after every
+    /// judged evaluation.
     #[arg(long, value_name = "N", default_value_t = 10)]
     pub save_every: u64,
     /// Run step two's protocol with the checkpoint's learning parameters (learning.toml's
@@ -266,9 +267,11 @@ pub fn serve(rt: &Runtime, dof: Dof, args: &Args) -> anyhow::Result<()> {
                 rollbacks = s.rollbacks,
                 "episode ended"
             );
+            // Step two: every judged evaluation is saved at once, so that a restart resumes with
+            // the best pair its partner keeps (the partner judged the same evaluation).
+            let periodic = args.save_every > 0 && episodes.is_multiple_of(args.save_every);
             if let Some(store) = saver.as_mut()
-                && args.save_every > 0
-                && episodes.is_multiple_of(args.save_every)
+                && (periodic || s.evaluated.is_finite())
             {
                 match save(store, behaviour) {
                     Ok(()) => {

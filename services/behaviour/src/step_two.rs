@@ -12,8 +12,19 @@
 //!   only. A learning trial draws the noise of its own stream (its number), so no two learning
 //!   trials share theirs.
 //! - **Every actor update** passes the trust region and the stability guard ([`guard`]).
-//! - **Keep the best**: at the end of each evaluation its mean return is judged against the best so
-//!   far ([`learning::KeepBest`]); a policy worse by more than the tolerance is replaced by the best.
+//! - **Keep the best pair**: at the end of each evaluation the pair of policies (sway's and yaw's)
+//!   is judged against the best pair so far ([`learning::KeepBest`]); a pair worse by more than the
+//!   tolerance is replaced by the best. A DOF's return depends on the other DOF's policy, so the two
+//!   behaviours judge the pair, not each its own return: each sums the pair's cost (both DOFs' state
+//!   costs, [`learning::state_costs`]) over the evaluation's observations, which both get alike, and
+//!   both apply the same rule to the same numbers, so they keep, and restore, the policies of one
+//!   and the same evaluation. Nothing passes between them and nothing waits: a partner that only
+//!   acts, is absent or is restarting changes nothing in the judging (its DOF is observed whatever
+//!   steers it). The best pair, the weights of its score and the evaluation in progress are in the
+//!   checkpoint, which the shell saves after every judged evaluation: a behaviour restarted between
+//!   evaluations judges on as if it had not stopped. One restarted within an evaluation misses some
+//!   of its trials and does not judge it (its partner does): the two bests may then differ until an
+//!   evaluation both judge beats both, which the behaviours' logs show (`best_trial`).
 //! - **A lost cable is a failed policy**: a trial that loses the cable restores the best policy at
 //!   once, and an evaluation in which it was lost never makes its policy the best. In a learning
 //!   trial, the DOF's observed position leaving the [`SAFETY_ENVELOPE`] (the learned policy heading

@@ -21,7 +21,11 @@
 //!   in an agent's state; read with their defaults (nothing evaluated, nothing refused yet).
 //! - version 2: no count of the lost trials of the evaluation in progress
 //!   (`SafetyState::evaluation_lost`); read as none lost.
-//! - version 3: the current format.
+//! - version 3: no pair in the best policy (`BestPolicy::cost`, `trial`) and no pair's cost of the
+//!   evaluation in progress or weights of the pair's score (`SafetyState::evaluation_cost`,
+//!   `scale`); read with the best's pair unknown (the next evaluation judged replaces it) and the
+//!   weights taken from the next evaluation.
+//! - version 4: the current format.
 //!
 //! Saving writes a temporary file in the target's directory, syncs it, renames it over the target and
 //! syncs the directory: a crash leaves either the old checkpoint or the new one, never a mix.
@@ -37,7 +41,7 @@ use std::path::{Path, PathBuf};
 /// The first bytes of every checkpoint file.
 pub const MAGIC: [u8; 8] = *b"CTRKCKPT";
 /// The format this code writes, and the newest it reads.
-pub const FORMAT_VERSION: u32 = 3;
+pub const FORMAT_VERSION: u32 = 4;
 /// Magic, version, payload length, CRC.
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 4;
 
@@ -438,6 +442,11 @@ impl Checkpoint {
                 bincode::serde::decode_from_slice(&payload, bincode::config::standard())
                     .map_err(decode_err)?;
             (old.into(), used)
+        } else if version == 3 {
+            let (old, used): (v3::Checkpoint, usize) =
+                bincode::serde::decode_from_slice(&payload, bincode::config::standard())
+                    .map_err(decode_err)?;
+            (old.into(), used)
         } else {
             bincode::serde::decode_from_slice(&payload, bincode::config::standard())
                 .map_err(decode_err)?
@@ -561,8 +570,80 @@ mod v1 {
 /// The payload of format version 2 (see the module docs), read into the current types.
 mod v2 {
     use super::{LearnerState, PolicyState};
-    use crate::safety::BestPolicy;
     use config::{Dof, LearningParams, QuadraticCost};
+    use serde::{Deserialize, Serialize};
+
+    #[derive(Serialize, Deserialize)]
+    pub struct Checkpoint {
+        pub sway: Option<AgentState>,
+        pub yaw: Option<AgentState>,
+    }
+
+    #[derive(Serialize, Deserialize)]
+    pub struct AgentState {
+        pub dof: Dof,
+        pub params: LearningParams,
+        pub cost: QuadraticCost,
+        pub state_max: [f64; 2],
+        pub policy: PolicyState,
+        pub learner: LearnerState,
+        pub steps: u64,
+        pub episodes: u64,
+        pub safety: SafetyState,
+    }
+
+    #[derive(Clone, Copy, Serialize, Deserialize)]
+    pub struct SafetyState {
+        pub bounded: u64,
+        pub refused: u64,
+        pub rollbacks: u64,
+        pub evaluations: u64,
+        pub best: Option<super::v3::BestPolicy>,
+        pub evaluation_sum: f64,
+        pub evaluation_trials: u32,
+    }
+
+    impl From<AgentState> for super::AgentState {
+        fn from(s: AgentState) -> Self {
+            let f = s.safety;
+            super::v3::AgentState {
+                dof: s.dof,
+                params: s.params,
+                cost: s.cost,
+                state_max: s.state_max,
+                policy: s.policy,
+                learner: s.learner,
+                steps: s.steps,
+                episodes: s.episodes,
+                safety: super::v3::SafetyState {
+                    bounded: f.bounded,
+                    refused: f.refused,
+                    rollbacks: f.rollbacks,
+                    evaluations: f.evaluations,
+                    best: f.best,
+                    evaluation_sum: f.evaluation_sum,
+                    evaluation_trials: f.evaluation_trials,
+                    evaluation_lost: 0,
+                },
+            }
+            .into()
+        }
+    }
+
+    impl From<Checkpoint> for super::Checkpoint {
+        fn from(c: Checkpoint) -> Self {
+            super::Checkpoint {
+                sway: c.sway.map(Into::into),
+                yaw: c.yaw.map(Into::into),
+            }
+        }
+    }
+}
+
+/// The payload of format version 3 (see the module docs), read into the current types.
+mod v3 {
+    use super::{LearnerState, PolicyState};
+    use config::{Dof, LearningParams, PerDof, QuadraticCost};
     use serde::{Deserialize, Serialize};
 
     #[derive(Serialize, Deserialize)]
@@ -593,6 +674,14 @@ mod v2 {
         pub best: Option<BestPolicy>,
         pub evaluation_sum: f64,
         pub evaluation_trials: u32,
+        pub evaluation_lost: u32,
+    }
+
+    /// The best policy before pairs: one DOF's gain and return.
+    #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+    pub struct BestPolicy {
+        pub gain: [f64; 2],
+        pub evaluated: f64,
     }
 
     impl From<AgentState> for super::AgentState {
@@ -612,10 +701,19 @@ mod v2 {
                     refused: f.refused,
                     rollbacks: f.rollbacks,
                     evaluations: f.evaluations,
-                    best: f.best,
-                    evaluation_sum: f.evaluation_sum,
-                    evaluation_trials: f.evaluation_trials,
+                    best: f.best.map(|b| crate::safety::BestPolicy {
+                        gain: b.gain,
+                        evaluated: b.evaluated,
+                        cost: PerDof::both(f64::INFINITY),
+                        trial: u32::MAX,
+                    }),
+                    // The pair's cost of an evaluation in progress is unknown: it starts again
+                    // empty, and as it misses trials it is not judged.
+                    evaluation_sum: 0.0,
+                    evaluation_trials: 0,
                     evaluation_lost: 0,
+                    evaluation_cost: PerDof::default(),
+                    scale: PerDof::default(),
                 },
             }
         }
@@ -963,26 +1061,39 @@ mod tests {
         assert_eq!(Checkpoint::load(&path).unwrap(), now);
     }
 
-    /// A file of format 2 (before the count of lost evaluation trials) still loads, its safety
-    /// state as saved and no evaluation trial lost.
+    fn file_of(version: u32, payload: &[u8]) -> Vec<u8> {
+        let mut bytes = MAGIC.to_vec();
+        bytes.extend_from_slice(&version.to_le_bytes());
+        bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        bytes.extend_from_slice(&crc32fast::hash(payload).to_le_bytes());
+        bytes.extend_from_slice(payload);
+        bytes
+    }
+
+    /// Files of formats 2 (before the count of lost evaluation trials) and 3 (before pairs) still
+    /// load: the counts as saved, the best policy with its pair unknown (infinitely costly, so the
+    /// next evaluation replaces it), the evaluation in progress started again.
     #[test]
-    fn a_format_2_checkpoint_loads_with_no_lost_evaluation_trial() {
+    fn format_2_and_3_checkpoints_load_with_the_best_pair_unknown() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("old.ckpt");
+        let best = v3::BestPolicy {
+            gain: [1.0, 2.0],
+            evaluated: -3.5,
+        };
         let mut now = both();
-        let safety = crate::safety::SafetyState {
+        now.sway.as_mut().unwrap().safety = crate::safety::SafetyState {
             rollbacks: 3,
             evaluations: 4,
             best: Some(crate::safety::BestPolicy {
-                gain: [1.0, 2.0],
-                evaluated: -3.5,
+                gain: best.gain,
+                evaluated: best.evaluated,
+                cost: config::PerDof::both(f64::INFINITY),
+                trial: u32::MAX,
             }),
-            evaluation_sum: -7.0,
-            evaluation_trials: 2,
             ..Default::default()
         };
-        now.sway.as_mut().unwrap().safety = safety;
-        let old = |s: &AgentState| v2::AgentState {
+        let v3_of = |s: &AgentState| v3::AgentState {
             dof: s.dof,
             params: s.params.clone(),
             cost: s.cost,
@@ -991,27 +1102,59 @@ mod tests {
             learner: s.learner.clone(),
             steps: s.steps,
             episodes: s.episodes,
-            safety: v2::SafetyState {
+            safety: v3::SafetyState {
                 bounded: s.safety.bounded,
                 refused: s.safety.refused,
                 rollbacks: s.safety.rollbacks,
                 evaluations: s.safety.evaluations,
-                best: s.safety.best,
-                evaluation_sum: s.safety.evaluation_sum,
-                evaluation_trials: s.safety.evaluation_trials,
+                best: s.safety.best.map(|_| best),
+                evaluation_sum: -7.0,
+                evaluation_trials: 2,
+                evaluation_lost: 1,
             },
         };
-        let file = v2::Checkpoint {
-            sway: now.sway.as_ref().map(old),
-            yaw: now.yaw.as_ref().map(old),
+        let v2_of = |s: &AgentState| {
+            let f = v3_of(s);
+            v2::AgentState {
+                dof: f.dof,
+                params: f.params,
+                cost: f.cost,
+                state_max: f.state_max,
+                policy: f.policy,
+                learner: f.learner,
+                steps: f.steps,
+                episodes: f.episodes,
+                safety: v2::SafetyState {
+                    bounded: f.safety.bounded,
+                    refused: f.safety.refused,
+                    rollbacks: f.safety.rollbacks,
+                    evaluations: f.safety.evaluations,
+                    best: f.safety.best,
+                    evaluation_sum: f.safety.evaluation_sum,
+                    evaluation_trials: f.safety.evaluation_trials,
+                },
+            }
         };
-        let payload = bincode::serde::encode_to_vec(&file, bincode::config::standard()).unwrap();
-        let mut bytes = MAGIC.to_vec();
-        bytes.extend_from_slice(&2u32.to_le_bytes());
-        bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-        bytes.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
-        bytes.extend_from_slice(&payload);
-        fs::write(&path, bytes).unwrap();
+        let c = bincode::config::standard();
+        let three = v3::Checkpoint {
+            sway: now.sway.as_ref().map(v3_of),
+            yaw: now.yaw.as_ref().map(v3_of),
+        };
+        fs::write(
+            &path,
+            file_of(3, &bincode::serde::encode_to_vec(&three, c).unwrap()),
+        )
+        .unwrap();
+        assert_eq!(Checkpoint::load(&path).unwrap(), now);
+        let two = v2::Checkpoint {
+            sway: now.sway.as_ref().map(v2_of),
+            yaw: now.yaw.as_ref().map(v2_of),
+        };
+        fs::write(
+            &path,
+            file_of(2, &bincode::serde::encode_to_vec(&two, c).unwrap()),
+        )
+        .unwrap();
         assert_eq!(Checkpoint::load(&path).unwrap(), now);
     }
 
@@ -1019,7 +1162,7 @@ mod tests {
     fn the_header_is_the_documented_layout() {
         let (_dir, _path, bytes) = saved_bytes();
         assert_eq!(&bytes[..8], b"CTRKCKPT");
-        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 3);
+        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 4);
         let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
         assert_eq!(len as usize, bytes.len() - HEADER_LEN);
         let crc = u32::from_le_bytes(bytes[20..24].try_into().unwrap());

@@ -36,5 +36,6 @@ pub use learner::{Algorithm, Learner, PolicyLearner, Transition};
 pub use nac::{GradientHistory, Nac, NacConfig, NacStatistics};
 pub use policy::LinearGaussian;
 pub use safety::{
-    BestPolicy, KeepBest, Review, SafetyState, StableSet, TrustRegion, UpdateGuard, Verdict,
+    BestPolicy, Evaluated, KeepBest, Review, SafetyState, StableSet, TrustRegion, UpdateGuard,
+    Verdict, pair_scale, pair_score, state_costs,
 };

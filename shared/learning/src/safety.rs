@@ -10,19 +10,42 @@
 //!   a spectral radius of at most `max_radius` (a stability-constrained update: the learner may not
 //!   step where the model, with a robustness margin, says the loop oscillates or diverges). A gain
 //!   already outside (a simulation policy can be) may only move towards the set.
-//! - [`KeepBest`]: after every evaluation the policy's evaluated return is compared with the best
-//!   so far; worse by more than a tolerance, the best policy is restored (a conservative rollback to
-//!   the best known baseline, as safe policy improvement with a baseline does). A policy under which
-//!   the cable was lost has failed whatever its return: the best is restored at once (a trial that
-//!   loses the cable ends early, which can cost a DOF less than tracking badly for the whole trial,
-//!   so the return alone would rank such a policy above a safe one), and the best is always a policy
-//!   whose evaluation kept the cable in every trial.
+//! - [`KeepBest`]: after every evaluation the pair of policies (sway and yaw) is compared with the
+//!   best pair so far on the pair's cost ([`pair_score`]); worse by more than a tolerance, the best
+//!   is restored (a conservative rollback to the best known baseline, as safe policy improvement with
+//!   a baseline does). A policy under which the cable was lost has failed whatever its return: the
+//!   best is restored at once (a trial that loses the cable ends early, which can cost a DOF less
+//!   than tracking badly for the whole trial, so the return alone would rank such a policy above a
+//!   safe one), and the best is always a pair whose evaluation kept the cable in every trial.
+//!
+//! **Why the pair, and why its cost as both behaviours see it.** A DOF's return depends on the
+//! other DOF's policy (sway moves the image under yaw's Theta), so each behaviour keeping the best
+//! of its own returns can end with a pair never evaluated together, worse than either evaluation
+//! said. Each behaviour therefore judges the pair, and both must reach the same verdict on every
+//! evaluation, so that they restore the policies of one and the same evaluation. Both see the same
+//! observations (every behaviour gets every cable observation, x_g and Theta alike), so the pair's
+//! cost is computed from them: each DOF's state cost `x'Qx` of the scenario's reward, summed over the
+//! evaluation's observed steps ([`state_costs`]). The behaviours compute it apart, with the same
+//! operations on the same numbers, and get the same bits: no message between them, no wait, and a
+//! behaviour whose partner only acts or is absent judges the same pair cost (the partner's DOF is
+//! still observed, whatever steers it). The action term of the reward is left out: a behaviour does
+//! not see its partner's commands (it is under 1% of a step's cost at the scenario's `r`).
+//!
+//! Each DOF's cost counts relative to its cost in the first evaluation of the session (the
+//! simulation policies on the vehicle): [`pair_score`] is minus the sum of the two ratios (-2 for the
+//! first evaluation). The weights are fixed for the session, so the score orders all evaluations
+//! (one best, whatever the order of judging), and a DOF counts by its relative change, not by the
+//! size of its cost (sway's cost with images is many times yaw's). A change of one DOF that costs
+//! the other is judged on the sum: sway's cost falling by 88% while yaw's rises by 44% (seed 3 of
+//! the main job) is a better pair, and the yaw policy's return with the new sway is its new
+//! baseline, which yaw then learns from, rather than a yaw return measured under a sway policy the
+//! vehicle no longer flies.
 //!
 //! [`UpdateGuard`] applies the first two to each actor update; [`SafetyState`] is what a checkpoint
 //! keeps of all three (counts and the best policy), so a restarted behaviour goes on where it was.
 
 use crate::lqr::DiscreteSystem;
-use config::{StabilityParams, TrustRegionParams};
+use config::{Dof, PerDof, QuadraticCost, StabilityParams, TrustRegionParams};
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
@@ -170,13 +193,64 @@ impl UpdateGuard {
     }
 }
 
-/// The best policy an evaluation has seen, and its evaluated return.
+/// The best pair an evaluation has seen: this behaviour's policy of it, and what the evaluation
+/// measured.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BestPolicy {
     /// K for (position, rate).
     pub gain: [f64; 2],
     /// Its evaluated return (the mean over the evaluation's trials).
     pub evaluated: f64,
+    /// The pair's cost in that evaluation (infinite when unknown: a best from a checkpoint of
+    /// format 3 or older, which the next evaluation judged replaces).
+    pub cost: PerDof<f64>,
+    /// The trial that closed that evaluation (the vehicle's number): both behaviours' bests name
+    /// the same one.
+    pub trial: u32,
+}
+
+/// One observed step's share of the pair's cost (see the module docs): each DOF's state cost
+/// `x'Qx` of `rewards` (the scenario's) at its observed (position, rate) `states`. An evaluation's
+/// pair cost is, per DOF, the mean over its trials of the sum over their observed steps.
+pub fn state_costs(rewards: &PerDof<QuadraticCost>, states: PerDof<[f64; 2]>) -> PerDof<f64> {
+    let c = |dof: Dof| {
+        let (q, x) = (rewards.get(dof).q, states.get(dof));
+        q[0] * x[0] * x[0] + q[1] * x[1] * x[1]
+    };
+    PerDof {
+        sway: c(Dof::Sway),
+        yaw: c(Dof::Yaw),
+    }
+}
+
+/// The pair's score (higher is better): minus the sum over the DOFs of the cost relative to the
+/// session's first evaluation (`scale`, each DOF's cost there). The rule both behaviours apply (see
+/// the module docs); NaN when a DOF's cost or scale is unknown.
+pub fn pair_score(cost: PerDof<f64>, scale: PerDof<f64>) -> f64 {
+    -(cost.sway / scale.sway + cost.yaw / scale.yaw)
+}
+
+/// The scale of the pair's score from the costs of the session's first evaluation: each DOF's
+/// cost, floored so that a DOF tracked perfectly there does not weigh infinitely.
+pub fn pair_scale(first: PerDof<f64>) -> PerDof<f64> {
+    const FLOOR: f64 = 1e-9;
+    PerDof {
+        sway: first.sway.abs().max(FLOOR),
+        yaw: first.yaw.abs().max(FLOOR),
+    }
+}
+
+/// One closed evaluation, as a behaviour judges it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Evaluated {
+    /// The trial that closed it.
+    pub trial: u32,
+    /// The policy evaluated (this behaviour's).
+    pub gain: [f64; 2],
+    /// Its mean return over the evaluation's trials.
+    pub evaluated: f64,
+    /// The pair's cost in it.
+    pub cost: PerDof<f64>,
 }
 
 /// What an evaluation decided.
@@ -218,11 +292,13 @@ impl KeepBest {
         KeepBest { tolerance }
     }
 
-    /// Judges `gain`, evaluated at `evaluated`, against the best in `state` (updated: the best, the
-    /// counts).
-    /// An evaluation in which the cable was lost ([`SafetyState::evaluation_lost`]) is
-    /// [`Verdict::Failed`].
-    pub fn judge(&self, state: &mut SafetyState, gain: [f64; 2], evaluated: f64) -> Verdict {
+    /// Judges the pair evaluated in `e` against the best pair in `state` (updated: the best, the
+    /// scale of the pair's score, the counts), on [`pair_score`]: better than the best, it is the
+    /// best; worse by more than the tolerance times the best's score, the best is restored. Both
+    /// behaviours call it with the same `e.cost` and `e.trial` and the same state of the account, so
+    /// they reach the same verdict. An evaluation in which the cable was lost
+    /// ([`SafetyState::evaluation_lost`]) is [`Verdict::Failed`].
+    pub fn judge(&self, state: &mut SafetyState, e: &Evaluated) -> Verdict {
         state.evaluations += 1;
         if state.evaluation_lost > 0 {
             // Restored, and counted, when the cable was lost (see `fall_back`).
@@ -230,16 +306,31 @@ impl KeepBest {
                 best: self.restorable(state),
             };
         }
-        let Some(best) = state.best.filter(|b| b.evaluated.is_finite()) else {
-            state.best = Some(BestPolicy { gain, evaluated });
+        let candidate = BestPolicy {
+            gain: e.gain,
+            evaluated: e.evaluated,
+            cost: e.cost,
+            trial: e.trial,
+        };
+        if !(state.scale.sway > 0.0 && state.scale.yaw > 0.0) {
+            // The session's first evaluation judged: its costs weigh the DOFs from now on.
+            state.scale = pair_scale(e.cost);
+        }
+        let score = pair_score(e.cost, state.scale);
+        let best = state
+            .best
+            .map(|b| (b, pair_score(b.cost, state.scale)))
+            .filter(|(_, s)| s.is_finite());
+        let Some((best, best_score)) = best else {
+            state.best = Some(candidate);
             return Verdict::Best;
         };
-        if evaluated > best.evaluated {
-            state.best = Some(BestPolicy { gain, evaluated });
+        if score > best_score {
+            state.best = Some(candidate);
             return Verdict::Best;
         }
         match self.tolerance {
-            Some(tol) if evaluated < best.evaluated - tol * best.evaluated.abs() => {
+            Some(tol) if score < best_score - tol * best_score.abs() => {
                 state.rollbacks += 1;
                 Verdict::RollBack { best }
             }
@@ -281,14 +372,24 @@ pub struct SafetyState {
     pub evaluation_sum: f64,
     /// ... and their number, ...
     pub evaluation_trials: u32,
-    /// ... and those of them that lost the cable.
+    /// ... and those of them that lost the cable, ...
     pub evaluation_lost: u32,
+    /// ... and the pair's cost so far (each DOF's state cost summed over the observed steps).
+    pub evaluation_cost: PerDof<f64>,
+    /// Each DOF's cost in the session's first evaluation judged: the weights of the pair's score
+    /// (0 before it).
+    pub scale: PerDof<f64>,
 }
 
 impl SafetyState {
     /// Checks that every number is usable (finite where it must be).
     pub fn is_valid(&self) -> bool {
         self.evaluation_sum.is_finite()
+            && self.evaluation_cost.sway.is_finite()
+            && self.evaluation_cost.yaw.is_finite()
+            && [self.scale.sway, self.scale.yaw]
+                .iter()
+                .all(|s| s.is_finite() && *s >= 0.0)
             && self
                 .best
                 .is_none_or(|b| b.gain.iter().all(|g| g.is_finite()) && !b.evaluated.is_nan())
@@ -390,33 +491,228 @@ mod tests {
         ));
     }
 
+    /// An evaluation closing at `trial` of the policy `gain`, the pair's costs (sway, yaw); the
+    /// behaviour's own return is minus its DOF's cost here.
+    fn ev(trial: u32, gain: f64, cost: (f64, f64)) -> Evaluated {
+        Evaluated {
+            trial,
+            gain: [gain, 0.0],
+            evaluated: -cost.0,
+            cost: PerDof {
+                sway: cost.0,
+                yaw: cost.1,
+            },
+        }
+    }
+
     #[test]
     fn keep_best_rolls_back_only_beyond_the_tolerance() {
         let judge = KeepBest::new(Some(0.1));
         let mut s = SafetyState::default();
-        assert_eq!(judge.judge(&mut s, [1.0, 0.0], -10.0), Verdict::Best);
-        assert_eq!(judge.judge(&mut s, [2.0, 0.0], -8.0), Verdict::Best);
-        let best = BestPolicy {
-            gain: [2.0, 0.0],
-            evaluated: -8.0,
-        };
-        // Within 10% of the best: kept.
+        // The first evaluation weighs the DOFs: its score is -2.
+        assert_eq!(judge.judge(&mut s, &ev(4, 1.0, (10.0, 4.0))), Verdict::Best);
         assert_eq!(
-            judge.judge(&mut s, [3.0, 0.0], -8.7),
+            s.scale,
+            PerDof {
+                sway: 10.0,
+                yaw: 4.0
+            }
+        );
+        // -(0.8 + 1.0) = -1.8: better.
+        assert_eq!(judge.judge(&mut s, &ev(14, 2.0, (8.0, 4.0))), Verdict::Best);
+        let best = s.best.unwrap();
+        assert_eq!(
+            (best.gain, best.trial, best.evaluated),
+            ([2.0, 0.0], 14, -8.0)
+        );
+        // -(0.8 + 1.15) = -1.95: worse by 8% of 1.8, within 10%: kept.
+        assert_eq!(
+            judge.judge(&mut s, &ev(24, 3.0, (8.0, 4.6))),
             Verdict::Kept { best }
         );
+        // -(0.8 + 1.2) = -2.0: worse by 11%: the best pair is restored.
         assert_eq!(
-            judge.judge(&mut s, [4.0, 0.0], -9.0),
+            judge.judge(&mut s, &ev(34, 4.0, (8.0, 4.8))),
             Verdict::RollBack { best }
         );
         assert_eq!((s.evaluations, s.rollbacks, s.best), (4, 1, Some(best)));
         // Keeping account only: never a rollback.
         let mut t = s;
         assert_eq!(
-            KeepBest::new(None).judge(&mut t, [4.0, 0.0], -90.0),
+            KeepBest::new(None).judge(&mut t, &ev(44, 4.0, (80.0, 40.0))),
             Verdict::Kept { best }
         );
         assert_eq!(t.rollbacks, 1);
+        // A best from an older checkpoint (its pair's cost unknown) gives way to the next pair.
+        let mut old = SafetyState {
+            best: Some(BestPolicy {
+                cost: PerDof::both(f64::INFINITY),
+                ..best
+            }),
+            ..Default::default()
+        };
+        assert_eq!(
+            judge.judge(&mut old, &ev(54, 5.0, (9.0, 9.0))),
+            Verdict::Best
+        );
+        assert_eq!(old.best.unwrap().trial, 54);
+    }
+
+    /// Both behaviours judge the same evaluations: what each keeps in force after every evaluation
+    /// (the policy evaluated, or the best restored) and its best, by evaluation.
+    fn session(judge: KeepBest, evaluations: &[Evaluated]) -> Vec<(u32, Option<u32>)> {
+        let mut s = SafetyState::default();
+        evaluations
+            .iter()
+            .map(|e| {
+                let in_force = match judge.judge(&mut s, e) {
+                    Verdict::Best | Verdict::Kept { .. } => e.trial,
+                    Verdict::RollBack { best } => best.trial,
+                    Verdict::Failed { best } => best.map_or(e.trial, |b| b.trial),
+                };
+                (in_force, s.best.map(|b| b.trial))
+            })
+            .collect()
+    }
+
+    /// One DOF's cost alone (the other's 0, weighing nothing): the judge of that DOF alone, the
+    /// rule before pairs.
+    fn alone(evaluations: &[Evaluated], dof: Dof) -> Vec<Evaluated> {
+        evaluations
+            .iter()
+            .map(|e| Evaluated {
+                cost: PerDof {
+                    sway: if dof == Dof::Sway { e.cost.sway } else { 0.0 },
+                    yaw: if dof == Dof::Yaw { e.cost.yaw } else { 0.0 },
+                },
+                ..*e
+            })
+            .collect()
+    }
+
+    /// The main job's seed 2 (returns as measured there, but for the made-up middle ones): yaw's
+    /// best return came after 10 learning trials, sway's after 20. Judging each DOF alone keeps yaw's
+    /// policy of the one evaluation and sway's of the other, a pair never evaluated together; the
+    /// pair's rule keeps one evaluation's pair in both.
+    #[test]
+    fn seed_2_both_keep_the_pair_of_one_evaluation() {
+        let judge = KeepBest::new(Some(0.02));
+        let evaluations = [
+            ev(4, 0.0, (6.897, 5.912)),
+            ev(14, 5.0, (6.80, 5.85)),
+            ev(24, 10.0, (6.60, 5.560)),
+            ev(34, 15.0, (6.30, 5.75)),
+            ev(44, 20.0, (6.024, 5.80)),
+        ];
+        let (sway, yaw) = (
+            session(judge, &alone(&evaluations, Dof::Sway)),
+            session(judge, &alone(&evaluations, Dof::Yaw)),
+        );
+        assert_eq!(sway.last().unwrap().1, Some(44));
+        assert_eq!(yaw.last().unwrap().1, Some(24), "alone, yaw keeps another");
+        // The pair: one account, whichever behaviour keeps it; -(0.873 + 0.981) = -1.854 after 20
+        // learning trials beats -(0.957 + 0.940) = -1.897 after 10.
+        let pair = session(judge, &evaluations);
+        assert_eq!(pair.last().unwrap(), &(44, Some(44)));
+        let mut s = SafetyState::default();
+        for e in &evaluations {
+            judge.judge(&mut s, e);
+        }
+        let best = s.best.unwrap();
+        assert_eq!(
+            (best.gain, best.cost),
+            (evaluations[4].gain, evaluations[4].cost)
+        );
+    }
+
+    /// The main job's seed 3: sway's cost fell from 9.75 to 1.14 while yaw's rose from 7.00 to
+    /// 10.09 with its simulation policy unchanged. Alone, yaw rolls back to a return measured under
+    /// a sway policy the vehicle no longer flies, for the rest of the session; as a pair it is a
+    /// better pair (-1.56 against -2), yaw's new baseline, and a yaw policy learned under the new
+    /// sway that does better is kept.
+    #[test]
+    fn seed_3_a_costly_improvement_of_sway_is_yaws_new_baseline() {
+        let judge = KeepBest::new(Some(0.02));
+        let evaluations = [
+            ev(4, 0.0, (9.75, 7.00)),
+            ev(14, 5.0, (1.14, 10.09)),
+            ev(24, 10.0, (1.20, 9.60)),
+            ev(34, 15.0, (1.15, 9.10)),
+        ];
+        let yaw = session(judge, &alone(&evaluations, Dof::Yaw));
+        assert!(yaw.iter().all(|&(in_force, _)| in_force == 4), "{yaw:?}");
+        let pair = session(judge, &evaluations);
+        assert_eq!(
+            pair,
+            vec![(4, Some(4)), (14, Some(14)), (24, Some(24)), (34, Some(34))]
+        );
+        // Yaw learning a worse policy under the new sway is still rolled back.
+        let worse = [evaluations[0], evaluations[1], ev(24, 10.0, (1.14, 11.0))];
+        assert_eq!(session(judge, &worse).last().unwrap(), &(14, Some(14)));
+    }
+
+    /// The verdict depends on the pair's costs and the account alone: the same for both behaviours,
+    /// whatever their own returns and gains, so they restore the same evaluation's policies.
+    #[test]
+    fn both_behaviours_reach_the_same_verdicts() {
+        let judge = KeepBest::new(Some(0.02));
+        let costs = [(5.0, 3.0), (4.0, 3.3), (4.5, 3.6), (3.0, 2.0), (3.2, 2.9)];
+        let (mut sway, mut yaw) = (SafetyState::default(), SafetyState::default());
+        for (i, &c) in costs.iter().enumerate() {
+            let trial = 4 + 10 * i as u32;
+            let s = judge.judge(&mut sway, &ev(trial, i as f64, c));
+            let mut for_yaw = ev(trial, -(i as f64), c);
+            for_yaw.evaluated = -c.1;
+            let y = judge.judge(&mut yaw, &for_yaw);
+            let trial_of = |v: Verdict| match v {
+                Verdict::Best => None,
+                Verdict::Kept { best } | Verdict::RollBack { best } => Some(best.trial),
+                Verdict::Failed { best } => best.map(|b| b.trial),
+            };
+            assert_eq!(std::mem::discriminant(&s), std::mem::discriminant(&y));
+            assert_eq!(trial_of(s), trial_of(y));
+            assert_eq!(sway.best.map(|b| b.trial), yaw.best.map(|b| b.trial));
+        }
+        assert_eq!(sway.rollbacks, 2);
+    }
+
+    #[test]
+    fn the_pair_cost_of_a_step_is_each_dofs_state_cost() {
+        let rewards = PerDof {
+            sway: QuadraticCost {
+                q: [1.1, 0.2],
+                r: 0.01,
+            },
+            yaw: QuadraticCost {
+                q: [2.0, 0.25],
+                r: 0.01,
+            },
+        };
+        let c = state_costs(
+            &rewards,
+            PerDof {
+                sway: [0.1, -0.2],
+                yaw: [0.3, 0.4],
+            },
+        );
+        assert!((c.sway - (1.1 * 0.01 + 0.2 * 0.04)).abs() < 1e-15);
+        assert!((c.yaw - (2.0 * 0.09 + 0.25 * 0.16)).abs() < 1e-15);
+        assert_eq!(
+            pair_scale(PerDof {
+                sway: 0.0,
+                yaw: -2.0
+            })
+            .yaw,
+            2.0
+        );
+        assert!(
+            pair_scale(PerDof {
+                sway: 0.0,
+                yaw: 2.0
+            })
+            .sway
+                > 0.0
+        );
     }
 
     /// A lost cable fails the policy whatever its return: it never becomes the best, and the best is
@@ -429,12 +725,15 @@ mod tests {
         assert_eq!(judge.fall_back(&mut s), None);
         s.evaluation_lost = 1;
         assert_eq!(
-            judge.judge(&mut s, [1.0, 0.0], -10.0),
+            judge.judge(&mut s, &ev(4, 1.0, (10.0, 1.0))),
             Verdict::Failed { best: None }
         );
         assert_eq!((s.best, s.rollbacks), (None, 0));
         s.evaluation_lost = 0;
-        assert_eq!(judge.judge(&mut s, [2.0, 0.0], -10.0), Verdict::Best);
+        assert_eq!(
+            judge.judge(&mut s, &ev(14, 2.0, (10.0, 1.0))),
+            Verdict::Best
+        );
         let best = s.best.unwrap();
         // The cable lost under another policy: the best, to restore at once, counted.
         assert_eq!(judge.fall_back(&mut s), Some(best));
@@ -443,13 +742,13 @@ mod tests {
         // restoring was counted when the cable was lost).
         s.evaluation_lost = 2;
         assert_eq!(
-            judge.judge(&mut s, [3.0, 0.0], -5.0),
+            judge.judge(&mut s, &ev(24, 3.0, (5.0, 1.0))),
             Verdict::Failed { best: Some(best) }
         );
         assert_eq!((s.best, s.rollbacks), (Some(best), 1));
         // Rollback off: judged, never restored.
         assert_eq!(
-            KeepBest::new(None).judge(&mut s, [3.0, 0.0], -5.0),
+            KeepBest::new(None).judge(&mut s, &ev(24, 3.0, (5.0, 1.0))),
             Verdict::Failed { best: None }
         );
         assert_eq!(KeepBest::new(None).fall_back(&mut s), None);

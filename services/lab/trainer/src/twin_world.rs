@@ -41,6 +41,9 @@ pub struct TrialResult {
     pub rolled_back: PerDof<bool>,
     /// The best evaluated return so far (NaN before the first evaluation).
     pub best: PerDof<f64>,
+    /// The pair's score of the evaluation this trial closed (`learning::pair_score`, on which both
+    /// behaviours judged it: -2 for the session's first; NaN when it closed none).
+    pub pair_score: f64,
     /// Each behaviour's safety counts after the trial: actor updates shortened, refused; rollbacks.
     pub bounded: PerDof<u64>,
     pub refused: PerDof<u64>,
@@ -265,6 +268,14 @@ impl TwinWorld {
                     })
                 };
                 let (sway, yaw) = (get(Dof::Sway), get(Dof::Yaw));
+                let scores = Dof::ALL.map(|dof| self.behaviours.get(dof).pair_score(trial));
+                // Both behaviours judge the pair on what both saw: one score.
+                assert!(
+                    scores[0].map(f64::to_bits) == scores[1].map(f64::to_bits)
+                        || scores.contains(&None),
+                    "trial {trial}: the behaviours judged the pair apart: {scores:?}"
+                );
+                let pair_score = scores.into_iter().flatten().next().unwrap_or(f64::NAN);
                 let both = |f: fn(&LearningStats) -> f64| PerDof {
                     sway: f(&sway),
                     yaw: f(&yaw),
@@ -299,6 +310,7 @@ impl TwinWorld {
                     bounded: count(|s| s.bounded),
                     refused: count(|s| s.refused),
                     rollbacks: count(|s| s.rollbacks),
+                    pair_score,
                 };
             }
             let allocation = self.allocator.allocate(model::Forces {

@@ -128,6 +128,26 @@ fn assert_the_final_pair_was_evaluated_together(results: &[SeedResult]) {
     }
 }
 
+/// Keeping the best pair: no seed ends with a pair worse than its simulation policies on its own
+/// evaluation set, on the score both behaviours judge (the evaluations are repeatable, so this holds
+/// exactly): the session's first evaluation scores -2, and the final pair at least -2 less the
+/// tolerance (a pair kept within the tolerance of the best). One DOF alone may end below its
+/// simulation policy where the other gained more (seed 1 on the harsh twin: yaw -3% of its gap
+/// closed, sway 126%).
+fn assert_no_pair_ends_worse(s: &Setup, results: &[SeedResult]) {
+    let tolerance = s.learning.safety.rollback.tolerance;
+    for r in results {
+        assert_eq!(r.curve[0].pair_score, Some(-2.0), "seed {}", r.seed);
+        let last = r.final_pair().expect("the final pair was evaluated");
+        let score = last.pair_score.expect("the session judged it");
+        assert!(
+            score >= -2.0 * (1.0 + tolerance),
+            "seed {}: the final pair scores {score}",
+            r.seed
+        );
+    }
+}
+
 /// The search, from a quarter of the LQR gains, on the twin with its reality gap off (the identified model),
 /// comes back to the LQR gain: the same evaluated return, and gains within the flat directions of
 /// the undiscounted trial return.
@@ -195,8 +215,8 @@ fn the_limit_search_finds_the_lqr_gain_with_the_gap_off() {
 }
 
 /// Over several seeds on the harsh twin (ideal perception): step two closes most of the gap to the
-/// twin's limit, no seed ends worse than its simulation policy on its evaluation set, and no trial
-/// loses the cable.
+/// twin's limit, no seed ends with a pair worse than its simulation policies on its evaluation set,
+/// every final pair was evaluated together, and no trial loses the cable.
 #[test]
 fn step_two_closes_the_gap_on_the_harsh_twin_and_never_leaves_a_seed_worse() {
     let s = setup();
@@ -205,31 +225,22 @@ fn step_two_closes_the_gap_on_the_harsh_twin_and_never_leaves_a_seed_worse() {
     let verdict = summary(&results);
     for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
         // The published benchmark (12 seeds, ideal perception, `scripts/bench-step-two --eyes
-        // ideal`): median gap closed 63% for yaw (seeds 22% to 85%) and 100% for sway (99% to
-        // 127%). The margin is what the spread over those seeds needs for 8 of them: the lowest
-        // median any 8 of the 12 give is 54.3% for yaw and 100.0% for sway, so the bounds are 54%
-        // and 99% (63% and 100% less 9 and 1 points). Seeds 1 to 8 measured 66.9% and 100.0%.
+        // ideal`): median gap closed 61% for yaw (seeds -3% to 85%) and 100% for sway (97% to
+        // 126%). The margin is what the spread over those seeds needs for 8 of them: the lowest
+        // median any 8 of the 12 give is 55.2% for yaw and 99.0% for sway, so the bounds are 55%
+        // and 98% (61% and 100% less 6 and 2 points). Seeds 1 to 8 measured 60.6% and 99.2%.
         let bound = match dof {
-            Dof::Yaw => 0.54,
-            Dof::Sway => 0.99,
+            Dof::Yaw => 0.55,
+            Dof::Sway => 0.98,
         };
         assert!(
             d.median_gap_closed >= bound,
             "{dof}: median gap closed {}",
             d.median_gap_closed
         );
-        // Keeping the best: no seed ends below its simulation policy on its own evaluation set
-        // (the evaluations are repeatable, so this holds exactly, not within noise).
-        for r in &results {
-            assert!(
-                *r.gap_closed.get(dof) >= 0.0,
-                "seed {}: {dof} gap closed {}",
-                r.seed,
-                r.gap_closed.get(dof)
-            );
-        }
     }
     assert_eq!(verdict.lost, 0, "no trial loses the cable");
+    assert_no_pair_ends_worse(&s, &results);
     assert_every_limit_is_a_limit(&results);
     assert_the_final_pair_was_evaluated_together(&results);
 }
@@ -262,30 +273,23 @@ fn no_trial_loses_the_cable_on_the_harsh_twin_with_a_cross_current() {
     }
     assert_eq!(verdict.lost, 0);
     assert_every_limit_is_a_limit(&results);
-    assert_the_final_pair_was_evaluated_together(&results);
     for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
         // The published benchmark (12 seeds, ideal perception): median gap closed 58% for yaw
-        // (seeds 0% to 90%) and 100% for sway (95% to 255%). The lowest median any 8 of those 12
-        // seeds give is 50.4% for yaw and 99.3% for sway, so the bounds are 50% and 99% (58% and
-        // 100% less 8 and 1 points). Seeds 1 to 8 measured 59.5% and 99.3%.
+        // (seeds -4% to 90%) and 99% for sway (66% to 236%). The lowest median any 8 of those 12
+        // seeds give is 44.1% for yaw and 98.3% for sway, so the bounds are 44% and 98% (58% and
+        // 99% less 14 and 1 points). Seeds 1 to 8 measured 54.5% and 98.3%.
         let bound = match dof {
-            Dof::Yaw => 0.50,
-            Dof::Sway => 0.99,
+            Dof::Yaw => 0.44,
+            Dof::Sway => 0.98,
         };
         assert!(
             d.median_gap_closed >= bound,
             "{dof}: median gap closed {}",
             d.median_gap_closed
         );
-        for r in &results {
-            assert!(
-                *r.gap_closed.get(dof) >= 0.0,
-                "seed {}: {dof} gap closed {}",
-                r.seed,
-                r.gap_closed.get(dof)
-            );
-        }
     }
+    assert_no_pair_ends_worse(&s, &results);
+    assert_the_final_pair_was_evaluated_together(&results);
 }
 
 /// An evaluation of step two's session is the protocol: the session's first evaluation (before any
@@ -457,6 +461,7 @@ fn a_rollback_restores_the_best_pair() {
     let mut twin = twin("twin-ideal.toml");
     twin.trials.duration_s = 30.0;
     let e = learning.evaluation.trials;
+    assert!(e > 1);
     for (i, run) in reckless_sessions(&s, &learning).iter().enumerate() {
         let seed = i as u64 + 1;
         let mut restored = 0;
@@ -479,8 +484,8 @@ fn a_rollback_restores_the_best_pair() {
                         .all(|&d| run[c].evaluated.get(d).to_bits() == trial.best.get(d).to_bits())
                 })
                 .expect("the best pair was evaluated before");
-            // The pair it evaluated: the gains after the trial before it.
-            let pair = run[c + 1 - e as usize - 1].gains;
+            // The pair it evaluated: the gains in its trials (no learning there).
+            let pair = run[c - 1].gains;
             assert_eq!(trial.gains, pair, "seed {seed}: the best pair is in force");
             assert_ne!(
                 run[t - 1].gains,
