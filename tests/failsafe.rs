@@ -23,8 +23,11 @@ use testkit::{Namespace, Probe, Process};
 
 /// Long enough for a process to start on a busy machine.
 const T: Duration = Duration::from_secs(20);
-/// The driver's default deadline: two sample periods of 0.2 s.
-const DEADLINE: Duration = Duration::from_millis(400);
+/// The driver's default deadline at the scenario's 0.2 s sample period (three periods: one missed
+/// frame passes, the second stops the thrusters).
+fn deadline() -> Duration {
+    adapters::failsafe::deadline(Duration::from_millis(200))
+}
 /// A busy 2-core machine wakes a blocked process late by tens of milliseconds now and then; a stop
 /// later than the deadline by more than this is a failure.
 const WAKE_MARGIN: Duration = Duration::from_millis(100);
@@ -201,8 +204,8 @@ fn when_the_commands_stop_the_thrusters_stop_at_the_deadline() {
     }
     let taken = Instant::now();
     let last = rig.step(&[&driver, &allocator]);
-    // No more commands: the last step's setpoints go stale once it is 400 ms old.
-    let stop = rig.stop(DEADLINE + WAKE_MARGIN + T).unwrap_or_else(|| {
+    // No more commands: the last step's setpoints go stale once they are the deadline old.
+    let stop = rig.stop(deadline() + WAKE_MARGIN + T).unwrap_or_else(|| {
         panic!(
             "the thrusters never stopped\n{}",
             logs(&[&driver, &allocator])
@@ -215,8 +218,9 @@ fn when_the_commands_stop_the_thrusters_stop_at_the_deadline() {
     );
     let after = stop.at.duration_since(taken);
     assert!(
-        after >= DEADLINE - Duration::from_millis(5) && after <= DEADLINE + WAKE_MARGIN,
-        "zero thrust {after:?} after the last step was taken, the deadline is {DEADLINE:?}"
+        after >= deadline() - Duration::from_millis(5) && after <= deadline() + WAKE_MARGIN,
+        "zero thrust {after:?} after the last step was taken, the deadline is {:?}",
+        deadline()
     );
     // Commands again: the thrusters are driven again.
     rig.step(&[&driver, &allocator]);
@@ -249,7 +253,7 @@ fn sigterm_stops_the_thrusters_before_the_driver_exits() {
         .unwrap_or_else(|| panic!("no stop after SIGTERM\n{}", logs(&[&driver, &allocator])));
     assert_stop(&stop, StopCause::Shutdown, &[&driver, &allocator]);
     assert!(
-        stop.at.duration_since(signalled) < DEADLINE,
+        stop.at.duration_since(signalled) < deadline(),
         "stopped {:?} after SIGTERM",
         stop.at.duration_since(signalled)
     );
@@ -270,7 +274,7 @@ fn a_killed_allocator_stops_the_thrusters_within_the_deadline() {
     for _ in 0..3 {
         rig.step(&[&driver, &allocator]);
     }
-    // Setpoints fresh for another 400 ms; the allocator dies now, with no chance to clean up.
+    // Setpoints fresh for another deadline; the allocator dies now, with no chance to clean up.
     let fresh = rig.step(&[&driver, &allocator]);
     allocator.kill9();
     remove_the_dead(&ns);
@@ -280,7 +284,7 @@ fn a_killed_allocator_stops_the_thrusters_within_the_deadline() {
     assert_stop(&stop, StopCause::AllocatorDead, &[&driver]);
     let after = stop.at.duration_since(fresh.at);
     assert!(
-        after < DEADLINE,
+        after < deadline(),
         "zero thrust {after:?} after the last setpoints: the allocator's death must be seen before they go stale"
     );
     let status = driver.terminate(T);
@@ -329,7 +333,7 @@ fn a_second_allocator_is_refused_and_the_thrusters_stop_when_the_first_dies() {
         .stop(T)
         .unwrap_or_else(|| panic!("the thrusters never stopped\n{}", driver.log()));
     assert_stop(&stop, StopCause::AllocatorDead, &[&driver]);
-    assert!(stop.at.duration_since(fresh.at) < DEADLINE);
+    assert!(stop.at.duration_since(fresh.at) < deadline());
 
     // A new allocator after the crash drives them again.
     let third = vehicle(&ns, "thruster-allocator", &[]);

@@ -4,10 +4,12 @@
 //!
 //! - The thrusters start at rest (a stop, cause `start`).
 //! - Setpoints whose stamp the [`Screen`] accepts are written to the sink (each value under the rule
-//!   for bad values) and are fresh until their step is the deadline old (two sample periods by
-//!   default) on the vehicle clock, counted from when the camera took it (not from when the
-//!   setpoints arrived: the loop's delivery time is part of the step's age); a repeat of the step written last is not written again; a
-//!   stale, older or absurd step is refused, so a late-joining driver never acts on old setpoints.
+//!   for bad values) and are fresh until their step is the deadline old on the vehicle clock,
+//!   counted from when the camera took it (not from when the setpoints arrived: the loop's delivery
+//!   time is part of the step's age). The deadline is three sample periods by default
+//!   ([`adapters::failsafe::deadline`]): one missed camera frame passes, the second stops the
+//!   thrusters. A repeat of the step written last is not written again; a stale, older or absurd
+//!   step is refused, so a late-joining driver never acts on old setpoints.
 //! - The thrusters stop (every setpoint 0, marked with its cause) when the setpoints they hold go
 //!   stale (`deadline`), when the allocator's process is gone (`allocator_dead`), and on shutdown
 //!   (`shutdown`); each stop once, until fresh setpoints come again.
@@ -17,7 +19,7 @@ pub mod bench;
 use adapters::failsafe::{Failsafe, Thrust};
 use adapters::{AdapterError, Applied, StopCause, ThrusterSink};
 use messages::ThrusterSetpoints;
-use runtime::screen::{Refusal, Screen, Verdict};
+use runtime::screen::{Refusal, Screen, ScreenLimits, Verdict};
 use std::time::{Duration, Instant};
 
 /// Which thruster sink the driver owns.
@@ -48,6 +50,17 @@ impl std::str::FromStr for SinkSpec {
                 )),
             },
         }
+    }
+}
+
+/// The driver's screen of the setpoint topic at the scenario's `sample_time_s`: the control loop's
+/// limits, with the failsafe deadline as the age limit, `deadline` if given, by default the rule of
+/// [`adapters::failsafe::deadline`] (one missed frame passes, two stop the thrusters).
+pub fn limits(sample_time_s: f64, deadline: Option<Duration>) -> ScreenLimits {
+    let period = Duration::from_secs_f64(sample_time_s);
+    ScreenLimits {
+        max_age: deadline.unwrap_or_else(|| adapters::failsafe::deadline(period)),
+        ..ScreenLimits::control(sample_time_s)
     }
 }
 
@@ -118,11 +131,9 @@ impl<S: ThrusterSink> Driver<S> {
         let until = match self.screen.fresh_until_if_accepted(&msg.stamp, now_ns) {
             // Taken on the driver's own clock (not older than the deadline on it): stale once the
             // step is the deadline old, not later by the loop's delivery time.
-            Some(t) if self.on_own_clock(&msg.stamp, now_ns) => t.min(
-                msg.stamp
-                    .clock_ns
-                    .saturating_add(self.deadline().as_nanos() as i64),
-            ),
+            Some(t) if self.on_own_clock(&msg.stamp, now_ns) => {
+                t.min(self.failsafe.fresh_until(msg.stamp.clock_ns))
+            }
             // A producer whose clock is behind: its age is read through its epoch's offset.
             Some(t) => t,
             None => self.failsafe.until_from(now_ns),
@@ -172,7 +183,6 @@ mod tests {
     use super::*;
     use adapters::record::NullSink;
     use messages::{Stamp, StepStatus};
-    use runtime::screen::ScreenLimits;
 
     const MS: i64 = 1_000_000;
     const T0: i64 = 7_200_000 * MS;
@@ -180,7 +190,7 @@ mod tests {
     fn driver() -> Driver<NullSink> {
         let mut d = Driver::new(
             NullSink::new(3).unwrap(),
-            Screen::new("setpoints", ScreenLimits::control(0.2)),
+            Screen::new("setpoints", limits(0.2, None)),
         );
         d.start().unwrap();
         d
@@ -200,17 +210,17 @@ mod tests {
     fn fresh_setpoints_drive_and_stale_ones_stop_the_thrusters() {
         let mut d = driver();
         assert_eq!(d.thrust(), Thrust::Stopped(StopCause::Start));
-        assert_eq!(d.deadline(), Duration::from_millis(400));
-        // Taken 1 ms before it arrives: fresh until the step is 400 ms old.
+        assert_eq!(d.deadline(), Duration::from_millis(600));
+        // Taken 1 ms before it arrives: fresh until the step is 600 ms old.
         let m = setpoints(1, T0, [0.5, 0.5, 0.1]);
         assert!(matches!(
             d.on_setpoints(&m, T0 + MS).unwrap(),
             Taken::Written(_)
         ));
         assert_eq!(d.on_setpoints(&m, T0 + 5 * MS).unwrap(), Taken::Repeat);
-        assert_eq!(d.time_left(T0 + 100 * MS), Some(Duration::from_millis(300)));
-        assert_eq!(d.on_time(T0 + 399 * MS).unwrap(), None);
-        assert_eq!(d.on_time(T0 + 400 * MS).unwrap(), Some(StopCause::Deadline));
+        assert_eq!(d.time_left(T0 + 100 * MS), Some(Duration::from_millis(500)));
+        assert_eq!(d.on_time(T0 + 599 * MS).unwrap(), None);
+        assert_eq!(d.on_time(T0 + 600 * MS).unwrap(), Some(StopCause::Deadline));
         assert_eq!(d.thrust(), Thrust::Stopped(StopCause::Deadline));
         assert_eq!(d.sink().stops(), 2);
         // A stale step after the stop is refused; a fresh one drives again.
@@ -225,6 +235,77 @@ mod tests {
             Taken::Written(_)
         ));
         assert_eq!(d.sink().written(), 2);
+    }
+
+    /// Frame `k` of a 5 Hz camera: taken at T0 + k periods, its setpoints `[0.1 k; 3]`.
+    fn frame(k: u32) -> ThrusterSetpoints {
+        setpoints(
+            u64::from(k) + 1,
+            T0 + i64::from(k) * 200 * MS,
+            [0.1 * f64::from(k); 3],
+        )
+    }
+
+    /// Drives `d` through frames `0..=last` but `missed`, each frame's setpoints arriving `latency`
+    /// after it was taken, the driver woken every millisecond: the stops made, with their times.
+    fn run(d: &mut Driver<NullSink>, last: u32, missed: &[u32], latency: i64) -> Vec<i64> {
+        let mut stops = Vec::new();
+        let end = T0 + i64::from(last + 1) * 200 * MS;
+        let mut k = 0;
+        for now in (T0..end).step_by(MS as usize) {
+            if k <= last && now == T0 + i64::from(k) * 200 * MS + latency {
+                if !missed.contains(&k) {
+                    assert!(
+                        matches!(d.on_setpoints(&frame(k), now).unwrap(), Taken::Written(_)),
+                        "frame {k}"
+                    );
+                }
+                k += 1;
+            }
+            if d.on_time(now).unwrap().is_some() {
+                stops.push(now);
+            }
+        }
+        stops
+    }
+
+    #[test]
+    fn one_missed_frame_keeps_the_thrusters_driven_and_the_second_stops_them() {
+        // Camera to thrusters in 1 ms (the vehicle's p50) and in 150 ms (far slower than any seen):
+        // the rule does not depend on it within the period.
+        for latency in [MS, 150 * MS] {
+            let mut d = driver();
+            let stops = run(&mut d, 9, &[3], latency);
+            assert_eq!(
+                stops,
+                Vec::<i64>::new(),
+                "one missed frame stopped the thrusters"
+            );
+            assert_eq!(d.sink().written(), 9);
+            assert_eq!(d.sink().stops(), 1, "the start's alone");
+            assert!(matches!(d.thrust(), Thrust::Driven { .. }));
+
+            // Frames 3 and 4 missed: stopped three periods after frame 2 was taken, before frame 5's
+            // setpoints arrive; frame 5 drives again.
+            let mut d = driver();
+            let stops = run(&mut d, 9, &[3, 4], latency);
+            assert_eq!(stops, [T0 + (2 + 3) * 200 * MS], "latency {latency}");
+            assert!(stops[0] < T0 + 5 * 200 * MS + latency);
+            assert_eq!(d.sink().written(), 8);
+            assert!(matches!(d.thrust(), Thrust::Driven { .. }));
+        }
+    }
+
+    #[test]
+    fn a_deadline_given_replaces_the_rule() {
+        let mut d = Driver::new(
+            NullSink::new(3).unwrap(),
+            Screen::new("setpoints", limits(0.2, Some(Duration::from_millis(400)))),
+        );
+        d.start().unwrap();
+        // At 400 ms the dropped frame's gap stops the thrusters until the next setpoints come.
+        let stops = run(&mut d, 5, &[3], 2 * MS);
+        assert_eq!(stops, [T0 + (2 * 200 + 400) * MS]);
     }
 
     #[test]
@@ -242,8 +323,8 @@ mod tests {
             d.on_setpoints(&second, T0 + 205 * MS).unwrap(),
             Taken::Written(_)
         ));
-        assert_eq!(d.on_time(T0 + 604 * MS).unwrap(), None);
-        assert_eq!(d.on_time(T0 + 605 * MS).unwrap(), Some(StopCause::Deadline));
+        assert_eq!(d.on_time(T0 + 804 * MS).unwrap(), None);
+        assert_eq!(d.on_time(T0 + 805 * MS).unwrap(), Some(StopCause::Deadline));
     }
 
     #[test]

@@ -10,7 +10,7 @@ use ardusub::{ArduSubSink, Publishers};
 use clap::Parser;
 use messages::{Endpoint, topics};
 use model::ThrusterLayout;
-use runtime::screen::{Screen, ScreenLimits};
+use runtime::screen::Screen;
 use runtime::{BadValues, CommonArgs, Runtime, Watch};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -38,8 +38,8 @@ struct Args {
         value_name = "twin|record:FILE|ardusub:URL|null"
     )]
     sink: SinkSpec,
-    /// Setpoints go stale, and the thrusters stop, once their step is older than this [default: two
-    /// sample periods].
+    /// Setpoints go stale, and the thrusters stop, once their step is older than this [default:
+    /// three sample periods, so one missed camera frame passes and the second stops the thrusters].
     #[arg(long, value_name = "MS")]
     deadline_ms: Option<u64>,
 }
@@ -97,13 +97,10 @@ fn main() -> ExitCode {
                 "the thruster driver serves the `vehicle` endpoint; on `sim` the simulator reads the setpoint topic"
             );
         }
-        let period = rt.scenario().timing.sample_time_s;
-        let limits = ScreenLimits {
-            max_age: args
-                .deadline_ms
-                .map_or(2 * Duration::from_secs_f64(period), Duration::from_millis),
-            ..ScreenLimits::control(period)
-        };
+        let limits = thruster_driver::limits(
+            rt.scenario().timing.sample_time_s,
+            args.deadline_ms.map(Duration::from_millis),
+        );
         // The thrusters first: a second driver stops here, before it touches anything.
         let sink = open_sink(rt, &args.sink)?;
         let setpoints = rt.inbox(&topics::THRUSTER_SETPOINTS)?;

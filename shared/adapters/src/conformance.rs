@@ -421,6 +421,9 @@ pub fn frame_source<R: SourceRig>(rig: &mut R) {
 ///   idempotent; writing, stopping or flushing after it is an error.
 /// - Zero on the deadline: driven by [`Failsafe`], the thrusters stop once (cause `deadline`) when
 ///   the setpoints they hold go stale, not before, and take setpoints again after.
+/// - The deadline's rule ([`crate::failsafe::deadline`]) at 5 Hz: after one missed frame the next
+///   step's setpoints find the thrusters still driven (no stop arrives); after two missed frames in
+///   a row the thrusters stop, before a third frame's setpoints could come.
 pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
     let name = rig.name();
     for bad in [0, config::MAX_THRUSTERS + 1] {
@@ -703,6 +706,8 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
     }
     drop(failsafe);
 
+    missed_frames(rig, &name);
+
     // The smallest and the largest layouts.
     for n in [1, config::MAX_THRUSTERS] {
         let mut sink = rig
@@ -738,4 +743,108 @@ pub fn thruster_sink<R: SinkRig>(rig: &mut R) {
         sink.close()
             .unwrap_or_else(|e| panic!("{name}: close: {e}"));
     }
+}
+
+/// One missed frame passes, the second stops the thrusters: the deadline's rule at the vehicle's
+/// 5 Hz, on the suite's own clock (ns), each step's setpoints arriving `LATENCY` after the camera
+/// took its frame.
+fn missed_frames<R: SinkRig>(rig: &mut R, name: &str) {
+    const MS: i64 = 1_000_000;
+    const PERIOD: i64 = 200 * MS;
+    // Camera to thrusters, a slow frame's (benchmarks.md: p99 in single milliseconds).
+    const LATENCY: i64 = 20 * MS;
+    let sink = rig
+        .open(3)
+        .unwrap_or_else(|e| panic!("{name}: cannot open a sink of 3: {e}"));
+    let mut failsafe = Failsafe::new(
+        sink,
+        crate::failsafe::deadline(Duration::from_nanos(PERIOD as u64)),
+    );
+    failsafe
+        .start()
+        .unwrap_or_else(|e| panic!("{name}: failsafe start: {e}"));
+    // Frame k taken at t0 + k periods.
+    let t0 = 60_000 * MS;
+    let taken = |k: u32| t0 + i64::from(k) * PERIOD;
+    let stamp = |k: u32| {
+        Stamp::new(
+            100 + u64::from(k),
+            (10_000 + u64::from(k)) * 200_000_000,
+            4,
+            k,
+            StepStatus::Running,
+        )
+        .timed(78, taken(k))
+    };
+    let step = |failsafe: &mut Failsafe<R::Sink>, k: u32, values: &[f64]| {
+        let until = failsafe.fresh_until(taken(k));
+        assert_eq!(
+            failsafe.on_time(taken(k) + LATENCY).unwrap(),
+            None,
+            "{name}: frame {k}'s setpoints arrive with the thrusters still driven"
+        );
+        failsafe
+            .apply(&stamp(k), values, until)
+            .unwrap_or_else(|e| panic!("{name}: failsafe write: {e}"));
+    };
+    let seen = |rig: &mut R, failsafe: &mut Failsafe<R::Sink>| rig.received(failsafe.sink_mut());
+    step(&mut failsafe, 0, &[0.3, -0.3, 0.1]);
+    step(&mut failsafe, 1, &[0.4, -0.4, 0.1]);
+    // Frame 2 is dropped: frame 1's setpoints hold until frame 3's come, a period later than usual.
+    for at in (taken(2) + LATENCY..=taken(3) + LATENCY).step_by(MS as usize) {
+        assert_eq!(
+            failsafe.on_time(at).unwrap(),
+            None,
+            "{name}: one missed frame stopped the thrusters {} ms after frame 1",
+            (at - taken(1)) / MS
+        );
+    }
+    step(&mut failsafe, 3, &[0.5, -0.5, 0.2]);
+    if let Some(got) = seen(rig, &mut failsafe) {
+        expect(
+            rig,
+            name,
+            &got,
+            &[
+                Arrived::stop(Stamp::default(), 3, StopCause::Start),
+                written(stamp(0), &[0.3, -0.3, 0.1]),
+                written(stamp(1), &[0.4, -0.4, 0.1]),
+                written(stamp(3), &[0.5, -0.5, 0.2]),
+            ],
+            "one missed frame: driven throughout, no stop",
+        );
+    }
+    // Frames 4 and 5 are dropped: frame 3's setpoints go stale three periods after it was taken,
+    // before frame 6's setpoints could arrive.
+    let mut stopped = None;
+    for at in (taken(4)..=taken(6) + LATENCY).step_by(MS as usize) {
+        if let Some(cause) = failsafe
+            .on_time(at)
+            .unwrap_or_else(|e| panic!("{name}: failsafe stop: {e}"))
+        {
+            assert_eq!(cause, StopCause::Deadline, "{name}");
+            stopped.get_or_insert(at);
+        }
+    }
+    assert_eq!(
+        stopped.map(|at| (at - taken(3)) / MS),
+        Some(3 * PERIOD / MS),
+        "{name}: two missed frames stop the thrusters three periods after the last frame taken"
+    );
+    assert!(
+        stopped.is_some_and(|at| at < taken(6) + LATENCY),
+        "{name}: stopped before frame 6's setpoints"
+    );
+    if let Some(got) = seen(rig, &mut failsafe) {
+        expect(
+            rig,
+            name,
+            &got,
+            &[Arrived::stop(stamp(3), 3, StopCause::Deadline)],
+            "two missed frames: zero",
+        );
+    }
+    failsafe
+        .close()
+        .unwrap_or_else(|e| panic!("{name}: failsafe close: {e}"));
 }

@@ -5,12 +5,35 @@
 //! wakes it on time; the conformance suite drives it over every sink with a clock of its own.
 //!
 //! Freshness: setpoints are valid until the time given with them (the driver gives the step's age
-//! limit on its clock, `runtime::screen::Screen::fresh_until`, or arrival plus the deadline for
-//! untimed stamps). Once that passes without newer ones, [`Failsafe::on_time`] stops the thrusters,
-//! once, until setpoints come again.
+//! limit on its clock, [`Failsafe::fresh_until`], or arrival plus the deadline for untimed stamps).
+//! Once that passes without newer ones, [`Failsafe::on_time`] stops the thrusters, once, until
+//! setpoints come again.
+//!
+//! The deadline's rule ([`deadline`]): a step's setpoints stay valid through one missed camera frame
+//! and stop at the second, whatever the sink (the twin's thrusters on shared memory, ArduSub over
+//! MAVLink: both are driven through this failsafe).
 
 use crate::{AdapterError, Applied, Stamp, StopCause, ThrusterSink};
 use std::time::Duration;
+
+/// Camera frames in a row that may go missing while the thrusters keep the setpoints of the step
+/// before them. A camera drops a frame now and then (the twin 3% of them): one such frame must not
+/// stop the vehicle. The next one missing stops it.
+pub const MISSED_FRAMES: u32 = 1;
+
+/// The failsafe deadline at the camera's sample period: how old a step's setpoints may get, counted
+/// from when the camera took its frame, before the thrusters stop. Three periods: the step's own,
+/// one per frame that may be missed ([`MISSED_FRAMES`]), and one of slack for the processing time.
+///
+/// The slack is a whole period because that is what the loop has to answer a frame before the next
+/// one comes (camera to thrusters takes milliseconds, benchmarks.md): with one frame missed the next
+/// step's setpoints arrive two periods plus that latency after the step, inside the deadline, and
+/// the thrusters never pause. With two missed, they stop at three periods, before a third frame's
+/// setpoints could arrive (three periods plus the latency). A deadline of exactly two periods would
+/// trip on every dropped frame, since the next step's setpoints come a latency after that.
+pub fn deadline(period: Duration) -> Duration {
+    period * (MISSED_FRAMES + 2)
+}
 
 /// What the thrusters are doing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -82,6 +105,12 @@ impl<S: ThrusterSink> Failsafe<S> {
         self.last = *stamp;
         self.thrust = Thrust::Driven { until_ns };
         Ok(applied)
+    }
+
+    /// The setpoints of a step the camera took at `clock_ns` (the vehicle clock) are fresh until the
+    /// deadline after it: their delivery time is part of the step's age.
+    pub fn fresh_until(&self, clock_ns: i64) -> i64 {
+        clock_ns.saturating_add(self.deadline.as_nanos().min(i64::MAX as u128) as i64)
     }
 
     /// Setpoints arriving at `now_ns` with no freshness of their own stay valid for the deadline.

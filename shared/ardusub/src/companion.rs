@@ -1275,6 +1275,124 @@ mod tests {
         );
     }
 
+    /// The companion as the thruster driver's failsafe drives it, without the link: a write's three
+    /// setpoints taken as the forces (surge, sway, yaw) its MANUAL_CONTROL carries (the layout's
+    /// mixing is the sink's, tested with it), a stop neutral.
+    struct Piloting(Companion);
+
+    impl adapters::ThrusterSink for Piloting {
+        fn describe(&self) -> String {
+            "the companion".into()
+        }
+        fn thrusters(&self) -> usize {
+            3
+        }
+        fn write(
+            &mut self,
+            stamp: &Stamp,
+            setpoints: &[f64],
+        ) -> Result<adapters::Applied, adapters::AdapterError> {
+            let applied = adapters::apply("the companion", 3, setpoints)?;
+            let v = applied.as_slice();
+            let forces = Forces {
+                surge: v[0],
+                sway: v[1],
+                yaw: v[2],
+            };
+            self.0.command(&forces, stamp);
+            Ok(applied)
+        }
+        fn stop(&mut self, stamp: &Stamp, cause: StopCause) -> Result<(), adapters::AdapterError> {
+            self.0.stop(stamp, cause);
+            Ok(())
+        }
+        fn flush(&mut self) -> Result<(), adapters::AdapterError> {
+            Ok(())
+        }
+        fn close(&mut self) -> Result<(), adapters::AdapterError> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn the_stick_is_held_through_one_missed_frame_and_neutral_at_the_second() {
+        use adapters::failsafe::{Failsafe, deadline};
+        let mut ap = Autopilot::new(ardusub_47());
+        let (c, start, _) = opened(&mut ap, false, Options::default());
+        const PERIOD: Duration = Duration::from_millis(200);
+        // Camera to the driver: a slow frame's.
+        const LATENCY: Duration = Duration::from_millis(20);
+        let mut failsafe = Failsafe::new(Piloting(c), deadline(PERIOD));
+        // The vehicle clock (ns) reads 1000 s at `start`; frame k is taken k periods after it.
+        let clock = |at: Instant| 1_000_000_000_000 + at.duration_since(start).as_nanos() as i64;
+        let taken = |k: u32| start + PERIOD * k;
+        let missed = [2, 4, 5];
+        // Frame k's stick: surge 0.1 (k + 1).
+        let x = |k: u32| 100 * (k as i16 + 1);
+        let mut sticks: Vec<(Duration, i16)> = Vec::new();
+        let mut k = 0;
+        let mut t = start;
+        while t < taken(7) {
+            if k < 7 && t == taken(k) + LATENCY {
+                if !missed.contains(&k) {
+                    let mut st = stamp(k);
+                    st = st.timed(1, clock(taken(k)));
+                    let until = failsafe.fresh_until(st.clock_ns);
+                    let force = 0.1 * f64::from(k + 1);
+                    failsafe.apply(&st, &[force, 0.0, 0.0], until).unwrap();
+                }
+                k += 1;
+            }
+            failsafe.on_time(clock(t)).unwrap();
+            failsafe.sink_mut().0.on_time(t).unwrap();
+            for m in failsafe.sink_mut().0.take().send {
+                if let MavMessage::MANUAL_CONTROL(m) = m {
+                    sticks.push((t.duration_since(start), m.x));
+                }
+            }
+            t += MS;
+        }
+        // At the steady rate from frame 0's setpoints on, each carrying the newest step's stick,
+        // frame 1's through the missed frame 2 until frame 3's come; neutral from three periods
+        // after frame 3 was taken (frames 4 and 5 missed), before frame 6's setpoints arrive; frame
+        // 6's drive again.
+        let neutral_from = PERIOD * 3 + deadline(PERIOD);
+        assert_eq!(neutral_from, Duration::from_millis(1200));
+        let want = |at: Duration| -> i16 {
+            if at >= neutral_from && at < PERIOD * 6 + LATENCY {
+                return 0;
+            }
+            let newest = (0..7)
+                .filter(|k| !missed.contains(k) && PERIOD * *k + LATENCY <= at)
+                .max()
+                .expect("after frame 0");
+            x(newest)
+        };
+        let driven: Vec<_> = sticks
+            .iter()
+            .filter(|(at, _)| *at >= LATENCY)
+            .copied()
+            .collect();
+        assert!(driven.len() >= 20 * 7 / 5, "{driven:?}");
+        for (at, got) in &driven {
+            assert_eq!(
+                *got,
+                want(*at),
+                "the stick {at:?} after frame 0 was taken: {driven:?}"
+            );
+        }
+        assert!(
+            driven.iter().any(|(at, x)| *at > PERIOD * 2 + LATENCY
+                && *at < PERIOD * 3 + LATENCY
+                && *x == 200)
+        );
+        assert_eq!(
+            driven.iter().find(|(_, x)| *x == 0).map(|(at, _)| *at),
+            Some(neutral_from),
+            "the stop's MANUAL_CONTROL, at once"
+        );
+    }
+
     #[test]
     fn the_pilot_gain_is_divided_out_a_clip_is_told_once_and_a_new_gain_rescales() {
         let mut p = ardusub_47();

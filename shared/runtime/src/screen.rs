@@ -56,7 +56,8 @@ pub struct ScreenLimits {
 
 impl ScreenLimits {
     /// The limits of the control loop at `sample_time_s`: a step older than two sample periods is
-    /// stale (the thruster driver's deadline), one a period ahead absurd.
+    /// stale, one a period ahead absurd. (The thruster driver's age limit is its failsafe deadline,
+    /// three periods: `thruster_driver::limits`.)
     pub fn control(sample_time_s: f64) -> Self {
         let period = Duration::from_secs_f64(sample_time_s);
         ScreenLimits {

@@ -6,7 +6,7 @@ use clap::{Args, Parser, Subcommand};
 use mesh_bench::report::{Machine, Results, calibrate, load, thousands};
 use mesh_bench::ring::{self, RingOptions, Role, Shape};
 use mesh_bench::runs::{self, MeshSetup};
-use mesh_bench::vehicle::VehicleSetup;
+use mesh_bench::vehicle::{VehiclePath, VehicleSetup};
 use runtime::CommonArgs;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -81,6 +81,17 @@ struct VehicleArgs {
     /// many frames as were timed, at most 1,000) and perception's core alone (100 frames).
     #[arg(long)]
     limit: bool,
+    /// Then the same over MAVLink: the BlueROV2's mesh (`--mavlink-mesh`, its `--mavlink-config`)
+    /// with the twin as ArduSub stand-in, each frame timed to the first MANUAL_CONTROL carrying its
+    /// command, as the autopilot reads it off its socket; reported beside this run.
+    #[arg(long)]
+    mavlink: bool,
+    /// The MAVLink run's configuration directory.
+    #[arg(long, default_value = "config/bluerov2")]
+    mavlink_config: PathBuf,
+    /// The MAVLink run's mesh file.
+    #[arg(long, default_value = "config/bluerov2.toml")]
+    mavlink_mesh: PathBuf,
 }
 
 #[derive(Args)]
@@ -276,19 +287,9 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
     if !(args.speed.is_finite() && args.speed > 0.0) {
         anyhow::bail!("--speed {} must be a number > 0", args.speed);
     }
-    let run = runs::VehicleRunSetup::new(&args.files, args.seed, args.sim_episodes)?;
-    let scenario = run.scenario()?;
-    let twin: config::TwinParams = config::load(&run.files.config.join("twin.toml"))?;
     let exe = std::env::current_exe()?;
-    let setup = VehicleSetup {
-        run,
-        steps: args.steps,
-        speed: args.speed,
-        steps_per_trial: (twin.trials.duration_s / scenario.timing.sample_time_s).round() as u32,
-        drop_probability: twin.frames.dropped.rate(),
-        period_s: scenario.timing.sample_time_s,
-        keep_latencies: args.latencies.clone(),
-    };
+    let setup = vehicle_setup(args, &args.files, VehiclePath::Twin)?;
+    let scenario = setup.run.scenario()?;
     let mut run = mesh_bench::vehicle::run(&setup)?;
     if args.limit {
         let period = std::time::Duration::from_secs_f64(setup.period_s / setup.speed);
@@ -317,6 +318,21 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
                 .context("the vehicle's limit: perception's core")?;
         run.limit = Some(mesh_bench::vehicle::VehicleLimit { ring, perception });
     }
+    if args.mavlink {
+        let files = runs::VehicleFiles {
+            config: args.mavlink_config.clone(),
+            sim_mesh: args.files.sim_mesh.clone(),
+            vehicle_mesh: args.mavlink_mesh.clone(),
+        };
+        let mut setup = vehicle_setup(args, &files, VehiclePath::Mavlink)?;
+        // Its frames kept beside the first run's: NAME-mavlink.csv.
+        setup.keep_latencies = args.latencies.as_ref().map(|p| {
+            let stem = p.file_stem().unwrap_or_default().to_string_lossy();
+            p.with_file_name(format!("{stem}-mavlink.csv"))
+        });
+        eprintln!("mesh-bench: vehicle: the same over MAVLink");
+        run.mavlink = Some(Box::new(mesh_bench::vehicle::run(&setup)?));
+    }
     let markdown = run.markdown(args.steps);
     report(
         &run,
@@ -324,6 +340,27 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
         args.json.as_deref(),
         args.markdown.as_deref(),
     )
+}
+
+/// The run of `files` on `path`, its trials sized from the configuration's twin.
+fn vehicle_setup(
+    args: &VehicleArgs,
+    files: &runs::VehicleFiles,
+    path: VehiclePath,
+) -> Result<VehicleSetup> {
+    let run = runs::VehicleRunSetup::new(files, args.seed, args.sim_episodes)?;
+    let scenario = run.scenario()?;
+    let twin: config::TwinParams = config::load(&run.files.config.join("twin.toml"))?;
+    Ok(VehicleSetup {
+        run,
+        path,
+        steps: args.steps,
+        speed: args.speed,
+        steps_per_trial: (twin.trials.duration_s / scenario.timing.sample_time_s).round() as u32,
+        drop_probability: twin.frames.dropped.rate(),
+        period_s: scenario.timing.sample_time_s,
+        keep_latencies: args.latencies.clone(),
+    })
 }
 
 fn cuts(args: &CutsArgs) -> Result<()> {

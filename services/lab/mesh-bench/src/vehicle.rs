@@ -7,6 +7,14 @@
 //! frame from its publication to the arrival of the setpoints answering it (`vehicle-twin --latency`,
 //! see `vehicle_twin::latency`): the whole vehicle path, both hardware adapters and every wake-up
 //! included. Meanwhile the bench reads each process in `/proc` every [`TICK`].
+//!
+//! With `--mavlink` the same run follows over MAVLink, a BlueROV2 under ArduSub
+//! (`config/bluerov2.toml`, the camera on the twin's frame topic): the thruster driver pilots the
+//! twin's ArduSub stand-in with MANUAL_CONTROL on UDP loopback, and the twin times every frame from
+//! its publication to the moment its autopilot reads the first MANUAL_CONTROL carrying the frame's
+//! command off its socket (the wire's far end: the driver's socket, the kernel's and the autopilot's
+//! wake-up included). The driver sends MANUAL_CONTROL at a steady 20 Hz, holding the last command
+//! between steps; held repeats are not answers, the one sent at once for a new step is.
 
 use crate::procfs;
 use crate::runs::{ProcessUse, RingRun, Tick, VehicleRunSetup, usage};
@@ -24,9 +32,34 @@ const TICK: Duration = Duration::from_secs(1);
 /// How often progress is printed.
 const PROGRESS: Duration = Duration::from_secs(60);
 
+/// Which vehicle path a run measures.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum VehiclePath {
+    /// `config/vehicle.toml`: the twin's thrusters on shared memory.
+    #[default]
+    Twin,
+    /// `config/bluerov2.toml`: the twin's ArduSub stand-in, piloted with MANUAL_CONTROL over UDP.
+    Mavlink,
+}
+
+impl VehiclePath {
+    /// What the run's latency runs to.
+    pub fn what(self) -> &'static str {
+        match self {
+            VehiclePath::Twin => {
+                "twin frame published → setpoints at the twin's thrusters (shared memory)"
+            }
+            VehiclePath::Mavlink => {
+                "twin frame published → first MANUAL_CONTROL carrying its command, read by the twin's ArduSub stand-in (MAVLink, UDP loopback)"
+            }
+        }
+    }
+}
+
 /// What to run.
 #[derive(Clone, Debug)]
 pub struct VehicleSetup {
+    pub path: VehiclePath,
     pub run: VehicleRunSetup,
     /// Frames to time, at least.
     pub steps: u64,
@@ -51,6 +84,8 @@ impl VehicleSetup {
 /// The results of one run.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct VehicleRun {
+    #[serde(default)]
+    pub path: VehiclePath,
     pub speed: f64,
     pub trials: u32,
     pub wall_s: f64,
@@ -73,6 +108,9 @@ pub struct VehicleRun {
     /// The vehicle's limit on the same machine, measured after the run (`--limit`).
     #[serde(default)]
     pub limit: Option<VehicleLimit>,
+    /// The same over MAVLink, run after this one (`--mavlink`).
+    #[serde(default)]
+    pub mavlink: Option<Box<VehicleRun>>,
 }
 
 /// What the vehicle's path costs on this machine without the vehicle's work: the bare ring in the
@@ -134,12 +172,32 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
             scratch.join("step-two/trace.jsonl").display().to_string(),
         ),
         ("latency", format!("--latency={}", latency_file.display())),
+        ("mavlink", String::new()),
+        ("video", String::new()),
+        ("source", String::new()),
         // The flight record, as a vehicle keeps it (every frame), in the run's own directory.
         (
             "record",
             scratch.join("record/flight.mcap").display().to_string(),
         ),
     ];
+    let sets: Vec<(&str, String)> = match setup.path {
+        VehiclePath::Twin => sets.into_iter().filter(|(_, v)| !v.is_empty()).collect(),
+        // The autopilot's port on loopback; the camera on the twin's frame topic (a default build
+        // has no GStreamer), so that both paths differ only in how the commands leave the driver.
+        VehiclePath::Mavlink => {
+            let port = std::net::UdpSocket::bind("127.0.0.1:0")?
+                .local_addr()?
+                .port();
+            sets.into_iter()
+                .map(|(k, v)| match k {
+                    "mavlink" => (k, format!("127.0.0.1:{port}")),
+                    "source" => (k, "twin".into()),
+                    _ => (k, v),
+                })
+                .collect()
+        }
+    };
     std::fs::create_dir_all(scratch.join("record"))?;
     let expected_s =
         trials as f64 * (setup.steps_per_trial + 1) as f64 * setup.period_s / setup.speed;
@@ -225,6 +283,8 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
         record_bytes += entry?.metadata()?.len();
     }
     Ok(VehicleRun {
+        path: setup.path,
+        mavlink: None,
         record_bytes,
         speed: setup.speed,
         trials,
@@ -292,7 +352,12 @@ impl VehicleRun {
         let us = |ns: u64| ns as f64 / 1e3;
         let _ = writeln!(
             md,
-            "### Vehicle endpoint: camera-to-thruster latency at {}x real time\n",
+            "### Vehicle endpoint{}: camera-to-thruster latency at {}x real time\n",
+            if self.path == VehiclePath::Mavlink {
+                " over MAVLink"
+            } else {
+                ""
+            },
             self.speed
         );
         let _ = writeln!(
@@ -317,7 +382,8 @@ impl VehicleRun {
         );
         let _ = writeln!(
             md,
-            "| twin frame published → setpoints at the twin's thrusters (target p99 < 1 ms) | {:.0} µs | {:.0} µs | {:.0} µs | {:.0} µs |\n",
+            "| {} | {:.0} µs | {:.0} µs | {:.0} µs | {:.0} µs |\n",
+            self.path.what(),
             us(self.latency.p50),
             us(self.latency.p99),
             us(self.latency.max),
@@ -381,6 +447,41 @@ impl VehicleRun {
             self.record_bytes as f64 / frames / 1e3,
             self.record_bytes as f64 / frames * 300.0 / 1e6,
         );
+        if let Some(mavlink) = &self.mavlink {
+            md.push('\n');
+            md.push_str(&self.paths_table(mavlink));
+            md.push('\n');
+            md.push_str(&mavlink.markdown(target_steps));
+        }
+        md
+    }
+
+    /// This run's latency beside `mavlink`'s, the MAVLink run after it: p50 and p99 of each, and
+    /// their ratios to this one's.
+    pub fn paths_table(&self, mavlink: &VehicleRun) -> String {
+        let ms = |ns: u64| ns as f64 / 1e6;
+        let mut md = String::from(
+            "### Both paths, one after the other\n\n\
+             | path | frames | p50 | p99 | max |\n|---|---:|---:|---:|---:|\n",
+        );
+        for run in [self, mavlink] {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {:.2} ms | {:.2} ms | {:.2} ms |",
+                run.path.what(),
+                run.latency.n,
+                ms(run.latency.p50),
+                ms(run.latency.p99),
+                ms(run.latency.max)
+            );
+        }
+        let ratio = |a: u64, b: u64| a as f64 / b.max(1) as f64;
+        let _ = writeln!(
+            md,
+            "\nOver MAVLink against shared memory: p50 {:.2}x, p99 {:.2}x.",
+            ratio(mavlink.latency.p50, self.latency.p50),
+            ratio(mavlink.latency.p99, self.latency.p99)
+        );
         md
     }
 }
@@ -402,6 +503,7 @@ mod tests {
                 seed: 1,
                 sim_episodes: 100,
             },
+            path: VehiclePath::Twin,
             steps: 10_000,
             speed: 1.0,
             steps_per_trial: 450,
@@ -458,6 +560,50 @@ mod tests {
         assert!(md.contains("The vehicle's p50 is 1.10x the ring's plus perception's (1000 µs); its p99 1.25x the ring's."), "{md}");
         let without = VehicleRun { limit: None, ..run };
         assert!(!without.markdown(1000).contains("limit"));
+    }
+
+    #[test]
+    fn the_mavlink_run_is_reported_beside_the_twins() {
+        let summary = |p50: u64, p99: u64, max: u64| Summary {
+            n: 2000,
+            p50,
+            p99,
+            max,
+            ..Default::default()
+        };
+        let mavlink = VehicleRun {
+            path: VehiclePath::Mavlink,
+            latency: summary(1_800_000, 4_500_000, 9_000_000),
+            ..Default::default()
+        };
+        let twin = VehicleRun {
+            latency: summary(1_200_000, 3_000_000, 6_000_000),
+            mavlink: Some(Box::new(mavlink)),
+            ..Default::default()
+        };
+        let md = twin.markdown(2000);
+        assert!(
+            md.contains(&format!(
+                "| {} | 2000 | 1.20 ms | 3.00 ms | 6.00 ms |",
+                VehiclePath::Twin.what()
+            )),
+            "{md}"
+        );
+        assert!(
+            md.contains(&format!(
+                "| {} | 2000 | 1.80 ms | 4.50 ms | 9.00 ms |",
+                VehiclePath::Mavlink.what()
+            )),
+            "{md}"
+        );
+        assert!(
+            md.contains("Over MAVLink against shared memory: p50 1.50x, p99 1.50x."),
+            "{md}"
+        );
+        assert!(md.contains("### Vehicle endpoint over MAVLink:"), "{md}");
+        let json = serde_json::to_string(&twin).unwrap();
+        let back: VehicleRun = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, twin);
     }
 
     #[test]

@@ -5,7 +5,7 @@
 //! each period is driven by the autopilot's motors; in lockstep a frame is answered by the step tag
 //! (`NAMED_VALUE_INT "ct_step"`) carrying its time, after the MANUAL_CONTROL that answers it.
 
-use crate::{Camera, Frames, TrialLog};
+use crate::{Camera, Frames, Latency, TrialLog};
 use anyhow::Context;
 use mavlink::Message;
 use runtime::lockstep::{Closed, Limits, Lockstep, Shell};
@@ -75,14 +75,19 @@ impl Link {
         })
     }
 
-    /// Every datagram waiting, scanned into frames (the socket drained: it wakes the loop while
-    /// readable). While the link is cut nothing is learnt of the peers.
-    fn receive(&mut self, now: Instant, autopilot: &ArduSub) -> anyhow::Result<Vec<wire::Frame>> {
+    /// Every datagram waiting, scanned into frames, each with when it was read (the socket drained:
+    /// it wakes the loop while readable). While the link is cut nothing is learnt of the peers.
+    fn receive(
+        &mut self,
+        now: Instant,
+        autopilot: &ArduSub,
+    ) -> anyhow::Result<Vec<(Instant, wire::Frame)>> {
         let mut frames = Vec::new();
         let mut buf = [0u8; 2048];
         loop {
             match self.socket.recv_from(&mut buf) {
                 Ok((n, from)) => {
+                    let read = Instant::now();
                     self.datagrams += 1;
                     if autopilot.link_up(now) && !self.peers.contains(&from) {
                         if self.peers.len() == MAX_PEERS {
@@ -91,7 +96,11 @@ impl Link {
                         tracing::info!(peer = %from, "a MAVLink peer");
                         self.peers.push(from);
                     }
-                    frames.extend(wire::scan(&buf[..n], &mut self.refused));
+                    frames.extend(
+                        wire::scan(&buf[..n], &mut self.refused)
+                            .into_iter()
+                            .map(|f| (read, f)),
+                    );
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return Ok(frames),
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
@@ -180,6 +189,7 @@ pub(crate) fn run(
     twin: Twin,
     camera: &mut Camera,
     log: &mut TrialLog,
+    latency: &mut Option<Latency>,
 ) -> anyhow::Result<()> {
     let mut link = Link::open(setup.url)?;
     // The loop waits on the socket while the handler reads and writes it: it waits on a duplicate.
@@ -197,7 +207,7 @@ pub(crate) fn run(
     );
     match setup.lockstep {
         Some(limits) => lockstep(rt, &mut link, fd, piloted, limits, &setup, camera, log),
-        None => real_time(rt, &mut link, fd, piloted, &setup, camera, log),
+        None => real_time(rt, &mut link, fd, piloted, &setup, camera, log, latency),
     }
 }
 
@@ -225,7 +235,7 @@ fn lockstep(
             |_| {
                 let now = Instant::now();
                 let frames = link.receive(now, lockstep.plant().autopilot())?;
-                for frame in frames {
+                for (_, frame) in frames {
                     let tag = lockstep.plant_mut().autopilot_mut().receive(now, &frame);
                     let Some(tag) = tag else { continue };
                     if !Piloted::tags(lockstep.current(), &tag) {
@@ -249,6 +259,9 @@ fn lockstep(
     Ok(())
 }
 
+/// Real time; with `latency`, each frame timed from its publication to the first MANUAL_CONTROL
+/// carrying its command, as read off the autopilot's socket (`vehicle_twin::latency`).
+#[allow(clippy::too_many_arguments)]
 fn real_time(
     rt: &Runtime,
     link: &mut Link,
@@ -257,6 +270,7 @@ fn real_time(
     setup: &Setup,
     camera: &mut Camera,
     log: &mut TrialLog,
+    latency: &mut Option<Latency>,
 ) -> anyhow::Result<()> {
     let Piloted { twin } = piloted;
     let mut clock = RealTime::new(twin, setup.period, setup.trials);
@@ -265,9 +279,18 @@ fn real_time(
         Timer::Interval(TICK),
         |_| {
             let now = Instant::now();
-            for frame in link.receive(now, core(&mut clock))? {
-                // Tags are for lockstep; in real time each period takes the newest input held.
-                core(&mut clock).receive(now, &frame);
+            for (read, frame) in link.receive(now, core(&mut clock))? {
+                // In real time each period takes the newest input held; tags time the frames.
+                let taken = core(&mut clock).counters().manual_control;
+                let tag = core(&mut clock).receive(now, &frame);
+                if let Some(l) = latency.as_mut() {
+                    if core(&mut clock).counters().manual_control > taken {
+                        l.stick(read);
+                    }
+                    if let Some(tag) = tag {
+                        l.tagged(tag.frame_time_ms)?;
+                    }
+                }
             }
             core(&mut clock).on_time(now);
             let tick = clock.on_time_with(now, camera.listening(), &mut |t, _| Piloted::step(t));
@@ -275,7 +298,7 @@ fn real_time(
                 Tick::Publish { shot, ended, .. } => {
                     core(&mut clock).observe(vehicle_of(&shot.state, &shot.rate));
                     log.closed(&ended, 0, false, &shot);
-                    camera.publish(clock.twin_mut(), &shot, false, &mut None)?;
+                    camera.publish(clock.twin_mut(), &shot, false, latency)?;
                     Flow::Continue
                 }
                 Tick::Finished { ended } => {

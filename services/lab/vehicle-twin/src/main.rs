@@ -56,7 +56,8 @@ struct Args {
     #[arg(long, value_name = "DIR")]
     record: Option<PathBuf>,
     /// Write every frame's camera-to-thruster latency here (CSV: seq,trial,step,latency_ns): from the
-    /// frame's publication to the arrival of the setpoints answering it.
+    /// frame's publication to the arrival of the setpoints answering it; with --autopilot (real time
+    /// only), to the first MANUAL_CONTROL carrying its command read off the autopilot's socket.
     #[arg(long, value_name = "FILE")]
     latency: Option<PathBuf>,
     /// Stand in for a BlueROV2's ArduSub autopilot on this MAVLink port (`udpin:HOST:PORT`,
@@ -230,7 +231,23 @@ impl Latency {
     }
 
     fn answered(&mut self, time_ns: u64) -> anyhow::Result<()> {
-        if let Some(s) = self.meter.answered(time_ns, Instant::now()) {
+        let sample = self.meter.answered(time_ns, Instant::now());
+        self.write(sample)
+    }
+
+    /// Over MAVLink: the autopilot took a MANUAL_CONTROL read at `at`.
+    pub(crate) fn stick(&mut self, at: Instant) {
+        self.meter.stick(at);
+    }
+
+    /// Over MAVLink: a step tag naming the frame of `frame_time_ms` came.
+    pub(crate) fn tagged(&mut self, frame_time_ms: u32) -> anyhow::Result<()> {
+        let sample = self.meter.tagged(frame_time_ms);
+        self.write(sample)
+    }
+
+    fn write(&mut self, sample: Option<latency::Sample>) -> anyhow::Result<()> {
+        if let Some(s) = sample {
             latency::write_sample(&mut self.out, &s)?;
             self.samples += 1;
             self.max = self.max.max(s.latency);
@@ -246,7 +263,7 @@ impl Latency {
             file = %self.path.display(),
             frames = self.samples,
             max_us = self.max.as_micros() as u64,
-            "camera-to-thruster latencies written"
+            "frame-to-answer latencies written"
         );
         Ok(())
     }
@@ -324,8 +341,10 @@ fn main() -> ExitCode {
         let twin = Twin::new(scenario, &params, rt.seed(), true)?;
         let size = (scenario.camera.width, scenario.camera.height);
         let len = size.0 as usize * size.1 as usize;
-        if args.autopilot.is_some() && args.latency.is_some() {
-            anyhow::bail!("--latency times thruster setpoints, which --autopilot does not take");
+        if args.autopilot.is_some() && args.lockstep && args.latency.is_some() {
+            anyhow::bail!(
+                "--latency with --autopilot times real-time runs (--speed), not --lockstep: there the step tag, not the clock, paces the twin"
+            );
         }
         let recorder = match &args.record {
             Some(dir) => Some(
@@ -366,8 +385,8 @@ fn main() -> ExitCode {
                 period,
                 trials: args.trials,
             };
-            autopilot::run(rt, setup, twin, &mut camera, &mut log)?;
-            return finish(None, &mut camera);
+            autopilot::run(rt, setup, twin, &mut camera, &mut log, &mut latency)?;
+            return finish(latency.take(), &mut camera);
         }
         let thrusters = TwinThrusterPort::open(rt.node())?;
         if args.lockstep {
