@@ -42,6 +42,10 @@ pub use payload::{
     CameraFrameHeader, DofCommand, LearningStats, Mission, MissionCommand, RecorderStatus,
     SERVO_CHANNELS, STATUS_TEXT_LEN, ServiceEvent, ServoOutputs, SetpointsForm, Stamp, Stamped,
     StatusText, StepStatus, StopCause, SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
+    VideoUnit,
 };
-pub use ports::{FrameInbox, FrameOutbox, FrameTap, Heartbeat, Inbox, Outbox, PortError, Tap};
+pub use ports::{
+    FrameInbox, FrameOutbox, FrameTap, Heartbeat, Inbox, Outbox, PortError, Tap, VideoInbox,
+    VideoOutbox, VideoTap,
+};
 pub use topics::{Endpoint, Qos, Topic};
