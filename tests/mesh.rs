@@ -104,7 +104,7 @@ fn twenty_episodes(seed: u64) -> Late {
 }
 
 /// Seeds 1 to 3, each run learns, and late in the run the cable is centred: the median over the
-/// seeds and the worst seed of the late mean |x_g| and |Theta| stay within the figures the README
+/// seeds and the worst seed of the late mean |x_g| and |Theta| stay within the figures docs/results.md
 /// publishes for these seeds, plus the margin the noise needs.
 ///
 /// The noise, measured: the same seed run again differs by up to 0.0006 in |x_g| and 0.01 degree in

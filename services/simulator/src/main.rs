@@ -4,7 +4,7 @@
 
 use clap::Parser;
 use messages::{Endpoint, topics};
-use runtime::lockstep::{Cause, Limits, Lockstep, Reaction};
+use runtime::lockstep::{Cause, Closed, Limits, Lockstep, Shell};
 use runtime::{CommonArgs, Flow, Timer};
 use simulator::Simulator;
 use simulator::lockstep::{EpisodeEnd, Published, SimPlant};
@@ -54,68 +54,64 @@ fn main() -> ExitCode {
             deadline_ms = args.deadline_ms,
             "publishing the first state; waiting for the mesh"
         );
-        // The mesh's pace is measured from its first answer (start-up is not counted).
-        let mut pace = Pace::default();
-        let mut act =
-            |lockstep: &Lockstep<SimPlant>, reaction: Reaction<SimPlant>| -> anyhow::Result<Flow> {
-                match reaction {
-                    Reaction::Idle => {}
-                    Reaction::Resend {
-                        step,
-                        waiting_for_mesh,
-                    } => {
-                        if let Some(waited) = waiting_for_mesh {
-                            tracing::info!(
-                                seq = step.seq,
-                                waited_s = waited.as_secs(),
-                                subscribers = states.subscribers(),
-                                "waiting for the mesh: no setpoints yet"
-                            );
-                        }
-                        states.send(step.message())?;
-                    }
-                    Reaction::Publish {
-                        closed,
-                        next,
-                        cause,
-                        waited,
-                        ended,
-                        ..
-                    } => {
-                        if let Some(closed) = closed {
-                            report(lockstep, &mut pace, &closed, cause, waited, &ended);
-                        }
-                        states.send(next.message())?;
-                    }
-                    Reaction::Finished {
-                        closed,
-                        cause,
-                        waited,
-                        ended,
-                    } => {
-                        report(lockstep, &mut pace, &closed, cause, waited, &ended);
-                        return Ok(Flow::Stop);
-                    }
-                }
-                Ok(Flow::Continue)
-            };
-        act(&lockstep, first)?;
+        let mut shell = States {
+            out: states,
+            pace: Pace::default(),
+        };
+        if lockstep.carry_out(&mut shell, first)? == Flow::Stop {
+            return Ok(());
+        }
         rt.serve(
             &[setpoints.listener()],
             Timer::Timeout(limits.tick()),
             |_| {
                 while let Some(sp) = setpoints.receive()? {
-                    let r = lockstep.on_answer(sp.stamp.seq, sp.as_slice(), Instant::now());
-                    if act(&lockstep, r)? == Flow::Stop {
+                    let flow =
+                        lockstep.answer(&mut shell, sp.stamp.seq, sp.as_slice(), Instant::now())?;
+                    if flow == Flow::Stop {
                         return Ok(Flow::Stop);
                     }
                 }
-                let r = lockstep.on_time(Instant::now());
-                act(&lockstep, r)
+                lockstep.tick(&mut shell, Instant::now())
             },
         )?;
         Ok(())
     })
+}
+
+/// The simulator's side of the lockstep: each step's state on its topic, and the run's log.
+struct States {
+    out: messages::Outbox<messages::VehicleStateMsg>,
+    pace: Pace,
+}
+
+impl Shell<SimPlant> for States {
+    fn publish(&mut self, _: &mut SimPlant, step: &Published, _again: bool) -> anyhow::Result<()> {
+        self.out.send(step.message())?;
+        Ok(())
+    }
+
+    fn closed(&mut self, lockstep: &Lockstep<SimPlant>, closed: Closed<SimPlant>) {
+        if let Some(step) = closed.step {
+            report(
+                lockstep,
+                &mut self.pace,
+                &step,
+                closed.cause,
+                closed.waited,
+                &closed.ended,
+            );
+        }
+    }
+
+    fn waiting(&mut self, step: &Published, waited: Duration) {
+        tracing::info!(
+            seq = step.seq,
+            waited_s = waited.as_secs(),
+            subscribers = self.out.subscribers(),
+            "waiting for the mesh: no setpoints yet"
+        );
+    }
 }
 
 /// The mesh's pace since its first answer.

@@ -66,23 +66,7 @@ impl Mode {
     }
 }
 
-/// The name of ArduSub's `custom_mode`, for logs.
-pub fn mode_name(custom_mode: u32) -> String {
-    match custom_mode {
-        0 => "STABILIZE".into(),
-        1 => "ACRO".into(),
-        2 => "ALT_HOLD".into(),
-        3 => "AUTO".into(),
-        4 => "GUIDED".into(),
-        7 => "CIRCLE".into(),
-        9 => "SURFACE".into(),
-        16 => "POSHOLD".into(),
-        19 => "MANUAL".into(),
-        20 => "MOTOR_DETECT".into(),
-        21 => "SURFTRAK".into(),
-        m => format!("mode {m}"),
-    }
-}
+pub use messages::ardusub_mode_name as mode_name;
 
 /// Who arms the vehicle.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -97,7 +81,7 @@ pub enum Arming {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Options {
     /// This companion's MAVLink system id: ArduSub takes MANUAL_CONTROL only from its ground
-    /// stations' ids (see the README), and 255 is the ground station's own.
+    /// stations' ids (see this crate's README), and 255 is the ground station's own.
     pub system: u8,
     pub component: u8,
     /// MANUAL_CONTROL messages per second.

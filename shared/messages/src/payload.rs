@@ -723,6 +723,26 @@ pub struct AutopilotState {
     pub battery_remaining: i8,
 }
 
+/// ArduSub's name of a flight mode number (HEARTBEAT `custom_mode`, [`AutopilotState::mode`]),
+/// for logs and `status`; a number ArduSub does not define is shown as such.
+pub fn ardusub_mode_name(custom_mode: u32) -> String {
+    let name = match custom_mode {
+        0 => "STABILIZE",
+        1 => "ACRO",
+        2 => "ALT_HOLD",
+        3 => "AUTO",
+        4 => "GUIDED",
+        7 => "CIRCLE",
+        9 => "SURFACE",
+        16 => "POSHOLD",
+        19 => "MANUAL",
+        20 => "MOTOR_DETECT",
+        21 => "SURFTRAK",
+        m => return format!("mode {m}"),
+    };
+    name.into()
+}
+
 /// The autopilot's attitude (MAVLink ATTITUDE): Euler angles in the NED frame, the project's
 /// conventions (yaw from north towards east, as psi from x towards y). Time as in
 /// [`AutopilotState`].

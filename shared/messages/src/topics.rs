@@ -202,8 +202,11 @@ const STATS: Qos = Qos {
     history: 1,
     buffer: 256,
     recorder_buffer: 256,
+    // The behaviour, and its restarted successor while the dead one is being cleaned up.
     max_publishers: 2,
-    max_subscribers: 4,
+    // The monitor, the flight recorder, the shore link's mirror, `status`, the other behaviour,
+    // a test's probe, with room.
+    max_subscribers: 8,
     max_nodes: 16,
 };
 pub const SWAY_LEARNING: Topic<LearningStats> = Topic::new("learning/sway", STATS);

@@ -2,7 +2,7 @@
 //! view (x_g in [-0.4, 0.4], Theta in [-60, 60] degrees), each frame on its own (no tracking), and
 //! over 500 frames without a cable.
 //!
-//! Each bound is the figure the README publishes for the test's seed plus the margin the noise
+//! Each bound is the figure docs/results.md publishes for the test's seed plus the margin the noise
 //! needs: the width of the range the same figure took over seeds 11 to 30 (20 runs of 1,000 poses),
 //! so that another seed, or a change that merely draws other random numbers, still passes, while a
 //! real loss of accuracy does not.

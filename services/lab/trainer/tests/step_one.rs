@@ -18,7 +18,7 @@ fn setup() -> Setup {
     .unwrap()
 }
 
-/// How far from the LQR limit NAC's late mean return lies in the README's Fig. 5 table (`trainer
+/// How far from the LQR limit NAC's late mean return lies in docs/results.md's Fig. 5 table (`trainer
 /// fig5`, the same runs as this test): yaw -6.66 against -6.33 (5.2%), sway -0.406 against -0.404
 /// (0.5%); each bound is that figure plus one percentage point. The runs are seeded, so on one
 /// machine the figures are exact; the point is for another machine's floating-point last bits (its
@@ -31,7 +31,7 @@ fn gap_bound(dof: Dof) -> f64 {
 }
 
 /// What step one must reach: after 100 episodes, over 100 independent runs, NAC's mean returns are
-/// as close to the LQR limit as the README publishes (the paper's criterion, within 10%, with room
+/// as close to the LQR limit as docs/results.md publishes (the paper's criterion, within 10%, with room
 /// to spare) and above the baseline's, and the cable stays in view in late episodes.
 #[test]
 fn nac_reaches_the_lqr_limit_within_100_episodes_and_beats_the_baseline() {

@@ -3,7 +3,7 @@
 //! closes most of the gap between the simulation policy and the twin's limit and leaves no seed worse
 //! than it found it; the limit search finds the LQR gain where the gap is off.
 //!
-//! Ideal perception (the camera's exact line and rates) keeps these tests to seconds; the README's
+//! Ideal perception (the camera's exact line and rates) keeps these tests to seconds; docs/results.md's
 //! benchmark (`trainer --eyes images step-two-bench`) runs the same with images and perception in
 //! the loop, as on the vehicle.
 
@@ -100,6 +100,31 @@ fn assert_every_limit_is_a_limit(results: &[SeedResult]) {
                 );
             }
         }
+    }
+}
+
+/// Keeping the best keeps a pair evaluated together: every row's final policies (after its last
+/// evaluation, the best pair restored where it was worse) are the pair one of its session's
+/// evaluations evaluated, without losing the cable, and the row's J_after is that evaluation's
+/// return in both DOFs, bit for bit. (Each DOF keeping the best of its own returns could end with
+/// one evaluation's yaw and another's sway, flown together nowhere in the session.)
+fn assert_the_final_pair_was_evaluated_together(results: &[SeedResult]) {
+    for r in results {
+        let together = r.curve.iter().find(|p| {
+            p.gains == r.after_gains
+                && p.lost == 0
+                && Dof::ALL
+                    .iter()
+                    .all(|&d| p.evaluated.get(d).to_bits() == r.after.get(d).to_bits())
+        });
+        assert!(
+            together.is_some(),
+            "seed {}: the final pair {:?} (J_after {:?}) is no evaluation's pair: {:?}",
+            r.seed,
+            r.after_gains,
+            r.after,
+            r.curve
+        );
     }
 }
 
@@ -206,6 +231,7 @@ fn step_two_closes_the_gap_on_the_harsh_twin_and_never_leaves_a_seed_worse() {
     }
     assert_eq!(verdict.lost, 0, "no trial loses the cable");
     assert_every_limit_is_a_limit(&results);
+    assert_the_final_pair_was_evaluated_together(&results);
 }
 
 /// Over several seeds on the harsh twin with the current across the cable (ideal perception): no
@@ -236,6 +262,7 @@ fn no_trial_loses_the_cable_on_the_harsh_twin_with_a_cross_current() {
     }
     assert_eq!(verdict.lost, 0);
     assert_every_limit_is_a_limit(&results);
+    assert_the_final_pair_was_evaluated_together(&results);
     for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
         // The published benchmark (12 seeds, ideal perception): median gap closed 58% for yaw
         // (seeds 0% to 90%) and 100% for sway (95% to 255%). The lowest median any 8 of those 12
@@ -420,11 +447,11 @@ fn a_destabilising_update_is_refused() {
 }
 
 /// Keeping the best: with long actor steps and no guard, some evaluation of every seed finds the
-/// learned policy worse than the best beyond the tolerance; the policy then in force is the best one,
-/// which the protocol, evaluating it alone (with the other DOF's policy of the best's evaluation),
-/// scores exactly at the best return.
+/// learned pair worse than the best beyond the tolerance; both behaviours then restore the policies
+/// of one and the same earlier evaluation (the best pair), which the protocol, evaluating that pair
+/// alone, scores exactly at the best returns in both DOFs.
 #[test]
-fn a_rollback_restores_the_best_policy() {
+fn a_rollback_restores_the_best_pair() {
     let s = setup();
     let learning = reckless(&s, false, true);
     let mut twin = twin("twin-ideal.toml");
@@ -434,37 +461,48 @@ fn a_rollback_restores_the_best_policy() {
         let seed = i as u64 + 1;
         let mut restored = 0;
         for (t, trial) in run.iter().enumerate() {
+            let rolled = trial.rolled_back;
+            assert_eq!(
+                rolled.sway, rolled.yaw,
+                "seed {seed} trial {t}: one DOF alone"
+            );
+            if !rolled.yaw {
+                continue;
+            }
+            restored += 1;
+            // The best's evaluation: the one whose returns are the best ones, in both DOFs.
+            let c = (0..t)
+                .rev()
+                .find(|&c| {
+                    Dof::ALL
+                        .iter()
+                        .all(|&d| run[c].evaluated.get(d).to_bits() == trial.best.get(d).to_bits())
+                })
+                .expect("the best pair was evaluated before");
+            // The pair it evaluated: the gains after the trial before it.
+            let pair = run[c + 1 - e as usize - 1].gains;
+            assert_eq!(trial.gains, pair, "seed {seed}: the best pair is in force");
+            assert_ne!(
+                run[t - 1].gains,
+                pair,
+                "seed {seed}: the policies were replaced"
+            );
+            let alone = evaluate(
+                &s.scenario,
+                &twin,
+                Eyes::Ideal,
+                &policy_checkpoint(&s.scenario, &learning, pair),
+                seed,
+                e,
+            )
+            .unwrap()
+            .mean();
             for dof in Dof::ALL {
-                if !*trial.rolled_back.get(dof) {
-                    continue;
-                }
-                restored += 1;
-                let (before, after) = (*run[t - 1].gains.get(dof), *trial.gains.get(dof));
-                assert_ne!(before, after, "seed {seed} {dof}: the policy was replaced");
-                // The best was evaluated along with the other DOF's policy of its evaluation (the
-                // other DOF may have moved since): evaluated with that one again.
-                let c = (0..t)
-                    .rev()
-                    .find(|&c| run[c].evaluated.get(dof).to_bits() == trial.best.get(dof).to_bits())
-                    .expect("the best was evaluated before");
-                let mut gains = run[c - 1].gains;
-                *gains.get_mut(dof) = after;
-                let alone = evaluate(
-                    &s.scenario,
-                    &twin,
-                    Eyes::Ideal,
-                    &policy_checkpoint(&s.scenario, &learning, gains),
-                    seed,
-                    e,
-                )
-                .unwrap()
-                .mean();
                 assert_eq!(
                     alone.get(dof).to_bits(),
                     trial.best.get(dof).to_bits(),
-                    "seed {seed} {dof}: the restored policy is the best one"
+                    "seed {seed} {dof}: the restored pair is the best one"
                 );
-                assert!(*trial.evaluated.get(dof) < *trial.best.get(dof));
             }
         }
         assert!(restored > 0, "seed {seed}: no rollback");
@@ -522,6 +560,7 @@ fn a_row_never_shows_a_limit_below_a_policy_it_evaluated() {
         );
     }
     assert_every_limit_is_a_limit(&results);
+    assert_the_final_pair_was_evaluated_together(&results);
 }
 
 /// Seeds in parallel give the rows a sequential run gives, and shards merged give the unsplit run's

@@ -5,16 +5,17 @@
 //! each period is driven by the autopilot's motors; in lockstep a frame is answered by the step tag
 //! (`NAMED_VALUE_INT "ct_step"`) carrying its time, after the MANUAL_CONTROL that answers it.
 
-use crate::{Camera, TrialLog};
+use crate::{Camera, Frames, TrialLog};
 use anyhow::Context;
 use mavlink::Message;
-use runtime::lockstep::{Cause, Limits, Lockstep, Reaction};
+use runtime::lockstep::{Closed, Limits, Lockstep, Shell};
 use runtime::{Flow, Runtime, Timer};
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 use vehicle_twin::Twin;
 use vehicle_twin::ardusub::{ArduSub, Counters, Fault, Out, Url, vehicle_of, wire};
 use vehicle_twin::driver::{Piloted, RealTime, Tick};
+use vehicle_twin::twin::Shot;
 
 /// The autopilot loop's wake-up period: the autopilot's clock (streams, the failsafe) is that fine.
 const TICK: Duration = Duration::from_millis(20);
@@ -212,68 +213,38 @@ fn lockstep(
     log: &mut TrialLog,
 ) -> anyhow::Result<()> {
     let (mut lockstep, first) = Lockstep::start(piloted, limits, setup.trials, Instant::now());
-    let mut act =
-        |lockstep: &mut Lockstep<Piloted>, r: Reaction<Piloted>| -> anyhow::Result<Flow> {
-            match r {
-                Reaction::Idle => {}
-                Reaction::Resend {
-                    step,
-                    waiting_for_mesh,
-                } => {
-                    if let Some(waited) = waiting_for_mesh {
-                        tracing::info!(
-                            seq = step.seq,
-                            waited_s = waited.as_secs(),
-                            "waiting for the mesh: no step tag yet"
-                        );
+    let mut shell = Frames {
+        camera,
+        log,
+        latency: &mut None,
+    };
+    if lockstep.carry_out(&mut shell, first)? == Flow::Continue {
+        rt.serve_inputs(
+            &[runtime::Input::Readable(fd)],
+            Timer::Interval(TICK),
+            |_| {
+                let now = Instant::now();
+                let frames = link.receive(now, lockstep.plant().autopilot())?;
+                for frame in frames {
+                    let tag = lockstep.plant_mut().autopilot_mut().receive(now, &frame);
+                    let Some(tag) = tag else { continue };
+                    if !Piloted::tags(lockstep.current(), &tag) {
+                        tracing::debug!(?tag, "a step tag for another frame");
+                        continue;
                     }
-                    camera.publish(&mut lockstep.plant_mut().twin, &step, true, &mut None)?;
+                    let key = lockstep.current().time_ns();
+                    if lockstep.answer(&mut shell, key, &[], now)? == Flow::Stop {
+                        link.send(now, lockstep.plant_mut().autopilot_mut());
+                        return Ok(Flow::Stop);
+                    }
                 }
-                Reaction::Publish {
-                    next,
-                    passed,
-                    ended,
-                    cause,
-                    ..
-                } => {
-                    log.closed(&ended, passed, cause == Cause::Deadline, &next);
-                    camera.publish(&mut lockstep.plant_mut().twin, &next, false, &mut None)?;
-                }
-                Reaction::Finished { closed, ended, .. } => {
-                    log.closed(&ended, 0, false, &closed);
-                    return Ok(Flow::Stop);
-                }
-            }
-            Ok(Flow::Continue)
-        };
-    act(&mut lockstep, first)?;
-    rt.serve_inputs(
-        &[runtime::Input::Readable(fd)],
-        Timer::Interval(TICK),
-        |_| {
-            let now = Instant::now();
-            let frames = link.receive(now, lockstep.plant().autopilot())?;
-            for frame in frames {
-                let tag = lockstep.plant_mut().autopilot_mut().receive(now, &frame);
-                let Some(tag) = tag else { continue };
-                if !Piloted::tags(lockstep.current(), &tag) {
-                    tracing::debug!(?tag, "a step tag for another frame");
-                    continue;
-                }
-                let key = lockstep.current().time_ns();
-                let r = lockstep.on_answer(key, &[], now);
-                if act(&mut lockstep, r)? == Flow::Stop {
-                    link.send(now, lockstep.plant_mut().autopilot_mut());
-                    return Ok(Flow::Stop);
-                }
-            }
-            lockstep.plant_mut().autopilot_mut().on_time(now);
-            link.send(now, lockstep.plant_mut().autopilot_mut());
-            link.log_counts(now, lockstep.plant().autopilot(), false);
-            let r = lockstep.on_time(now);
-            act(&mut lockstep, r)
-        },
-    )?;
+                lockstep.plant_mut().autopilot_mut().on_time(now);
+                link.send(now, lockstep.plant_mut().autopilot_mut());
+                link.log_counts(now, lockstep.plant().autopilot(), false);
+                lockstep.tick(&mut shell, now)
+            },
+        )?;
+    }
     link.log_counts(Instant::now(), lockstep.plant().autopilot(), true);
     Ok(())
 }
@@ -321,4 +292,23 @@ fn real_time(
     )?;
     link.log_counts(Instant::now(), core(&mut clock), true);
     Ok(())
+}
+
+impl Shell<Piloted> for Frames<'_> {
+    fn publish(&mut self, piloted: &mut Piloted, shot: &Shot, again: bool) -> anyhow::Result<()> {
+        self.camera
+            .publish(&mut piloted.twin, shot, again, self.latency)
+    }
+
+    fn closed(&mut self, _: &Lockstep<Piloted>, closed: Closed<Piloted>) {
+        self.log.closed_step(&closed);
+    }
+
+    fn waiting(&mut self, shot: &Shot, waited: Duration) {
+        tracing::info!(
+            seq = shot.seq,
+            waited_s = waited.as_secs(),
+            "waiting for the mesh: no step tag yet"
+        );
+    }
 }

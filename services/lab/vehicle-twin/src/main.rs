@@ -13,7 +13,7 @@ use anyhow::Context;
 use clap::Parser;
 use config::TwinParams;
 use records::latency;
-use runtime::lockstep::{Cause, Limits, Lockstep, Reaction};
+use runtime::lockstep::{Cause, Closed, Limits, Lockstep, Plant, Shell};
 use runtime::{CommonArgs, Flow, Timer};
 use std::io::Write;
 use std::path::PathBuf;
@@ -372,67 +372,37 @@ fn main() -> ExitCode {
         let thrusters = TwinThrusterPort::open(rt.node())?;
         if args.lockstep {
             let (mut lockstep, first) = Lockstep::start(twin, limits, args.trials, Instant::now());
-            let mut act = |lockstep: &mut Lockstep<Twin>,
-                           latency: &mut Option<Latency>,
-                           r: Reaction<Twin>|
-             -> anyhow::Result<Flow> {
-                match r {
-                    Reaction::Idle => {}
-                    Reaction::Resend {
-                        step,
-                        waiting_for_mesh,
-                    } => {
-                        if let Some(waited) = waiting_for_mesh {
-                            tracing::info!(
-                                seq = step.seq,
-                                waited_s = waited.as_secs(),
-                                frame_sources = camera.port.listeners(),
-                                "waiting for the mesh: no setpoints yet"
-                            );
-                        }
-                        camera.publish(lockstep.plant_mut(), &step, true, latency)?;
-                    }
-                    Reaction::Publish {
-                        next,
-                        passed,
-                        ended,
-                        cause,
-                        ..
-                    } => {
-                        log.closed(&ended, passed, cause == Cause::Deadline, &next);
-                        camera.publish(lockstep.plant_mut(), &next, false, latency)?;
-                    }
-                    Reaction::Finished { closed, ended, .. } => {
-                        log.closed(&ended, 0, false, &closed);
-                        return Ok(Flow::Stop);
-                    }
-                }
-                Ok(Flow::Continue)
+            let mut shell = Frames {
+                camera: &mut camera,
+                log: &mut log,
+                latency: &mut latency,
             };
-            act(&mut lockstep, &mut latency, first)?;
-            rt.serve(
-                &[thrusters.listener()],
-                Timer::Timeout(limits.tick()),
-                |_| {
-                    while let Some(sp) = thrusters.receive()? {
-                        if let Some(cause) = sp.stop_cause() {
-                            // A failsafe stop answers no frame: the thrusters hold 0 from now on.
-                            tracing::debug!(%cause, "the vehicle stopped the thrusters");
-                            lockstep.plant_mut().stop_thrusters();
-                            continue;
+            if lockstep.carry_out(&mut shell, first)? == Flow::Continue {
+                rt.serve(
+                    &[thrusters.listener()],
+                    Timer::Timeout(limits.tick()),
+                    |_| {
+                        while let Some(sp) = thrusters.receive()? {
+                            if let Some(cause) = sp.stop_cause() {
+                                // A failsafe stop answers no frame: the thrusters hold 0 from now on.
+                                tracing::debug!(%cause, "the vehicle stopped the thrusters");
+                                lockstep.plant_mut().stop_thrusters();
+                                continue;
+                            }
+                            if let Some(l) = shell.latency.as_mut() {
+                                l.answered(sp.stamp.time_ns)?;
+                            }
+                            let now = Instant::now();
+                            if lockstep.answer(&mut shell, sp.stamp.time_ns, sp.as_slice(), now)?
+                                == Flow::Stop
+                            {
+                                return Ok(Flow::Stop);
+                            }
                         }
-                        if let Some(l) = latency.as_mut() {
-                            l.answered(sp.stamp.time_ns)?;
-                        }
-                        let r = lockstep.on_answer(sp.stamp.time_ns, sp.as_slice(), Instant::now());
-                        if act(&mut lockstep, &mut latency, r)? == Flow::Stop {
-                            return Ok(Flow::Stop);
-                        }
-                    }
-                    let r = lockstep.on_time(Instant::now());
-                    act(&mut lockstep, &mut latency, r)
-                },
-            )?;
+                        lockstep.tick(&mut shell, Instant::now())
+                    },
+                )?;
+            }
         } else {
             let mut clock = RealTime::new(twin, period, args.trials);
             // The interval timer wakes the loop; the clock decides when a period is due (a wake-up
@@ -481,6 +451,33 @@ fn finish(latency: Option<Latency>, camera: &mut Camera) -> anyhow::Result<()> {
 }
 
 /// Logs trial ends and unanswered frames.
+/// The twin's side of the lockstep, over shared memory or behind the ArduSub stand-in: each frame
+/// to the camera, each closed frame to the trial log.
+pub(crate) struct Frames<'a> {
+    pub(crate) camera: &'a mut Camera,
+    pub(crate) log: &'a mut TrialLog,
+    pub(crate) latency: &'a mut Option<Latency>,
+}
+
+impl Shell<Twin> for Frames<'_> {
+    fn publish(&mut self, twin: &mut Twin, shot: &Shot, again: bool) -> anyhow::Result<()> {
+        self.camera.publish(twin, shot, again, self.latency)
+    }
+
+    fn closed(&mut self, _: &Lockstep<Twin>, closed: Closed<Twin>) {
+        self.log.closed_step(&closed);
+    }
+
+    fn waiting(&mut self, shot: &Shot, waited: Duration) {
+        tracing::info!(
+            seq = shot.seq,
+            waited_s = waited.as_secs(),
+            frame_sources = self.camera.port.listeners(),
+            "waiting for the mesh: no setpoints yet"
+        );
+    }
+}
+
 pub(crate) struct TrialLog {
     steps_per_trial: u32,
     started: Instant,
@@ -494,6 +491,16 @@ impl TrialLog {
             started: Instant::now(),
             frames: 0,
         }
+    }
+
+    /// A frame closed in lockstep: the trial log's line, from the frame published next (the last
+    /// one at the end).
+    pub(crate) fn closed_step<P: Plant<Step = Shot, End = TrialEnd>>(&mut self, c: &Closed<P>) {
+        let Some(shot) = c.next.as_ref().or(c.step.as_ref()) else {
+            return;
+        };
+        let deadline = c.next.is_some() && c.cause == Cause::Deadline;
+        self.closed(&c.ended, c.passed, deadline, shot);
     }
 
     pub(crate) fn closed(&mut self, ended: &[TrialEnd], passed: u32, deadline: bool, shot: &Shot) {

@@ -102,24 +102,6 @@ pub struct AutopilotStatus {
     pub last_text: Option<(u8, String)>,
 }
 
-/// ArduSub's name of a mode number (`custom_mode`).
-pub fn ardusub_mode(mode: u32) -> String {
-    match mode {
-        0 => "STABILIZE".into(),
-        1 => "ACRO".into(),
-        2 => "ALT_HOLD".into(),
-        3 => "AUTO".into(),
-        4 => "GUIDED".into(),
-        7 => "CIRCLE".into(),
-        9 => "SURFACE".into(),
-        16 => "POSHOLD".into(),
-        19 => "MANUAL".into(),
-        20 => "MOTOR_DETECT".into(),
-        21 => "SURFTRAK".into(),
-        n => format!("mode {n}"),
-    }
-}
-
 fn finite(v: f64) -> Option<f64> {
     v.is_finite().then_some(v)
 }
@@ -144,7 +126,7 @@ impl AutopilotStatus {
             s.heartbeat = a.heartbeat == 1;
             s.armed = a.armed == 1;
             s.mode = if s.heartbeat {
-                ardusub_mode(a.mode)
+                messages::ardusub_mode_name(a.mode)
             } else {
                 "unknown".into()
             };

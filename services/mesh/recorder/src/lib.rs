@@ -32,7 +32,7 @@ pub mod writer;
 
 pub use channels::{Channel, CommandDof, Drain, Key, Recorded, taps};
 pub use keep::{Counts, Keep, Keeper, Overlay};
-pub use read::{Message, ReadError, ReadSummary, Reader, holes, metadata, read};
+pub use read::{Message, ReadError, ReadSummary, Reader, holes, metadata, read, totals};
 pub use writer::{FlightRecorder, Options, RecordError, Totals, parts};
 
 use std::path::{Path, PathBuf};

@@ -6,6 +6,7 @@
 
 use crate::channels::{Channel, Recorded};
 use crate::image::Image;
+use crate::keep::Counts;
 use crate::writer;
 use prost::Message as _;
 use std::collections::BTreeMap;
@@ -231,6 +232,13 @@ pub fn read(path: &Path, mut f: impl FnMut(Message)) -> Result<ReadSummary, Read
 /// The steps missed over all channels, from the totals a cleanly stopped recorder writes into its
 /// last part (`None`: no totals there, the recorder did not stop cleanly).
 pub fn holes(path: &Path) -> Result<Option<u64>, ReadError> {
+    Ok(totals(path)?.map(|t| t.values().map(|c| c.holes).sum()))
+}
+
+/// What the recorder did with each channel's messages (by the channel's topic), from the totals a
+/// cleanly stopped recorder writes into its last part (`None`: no totals there, the recorder did
+/// not stop cleanly).
+pub fn totals(path: &Path) -> Result<Option<BTreeMap<String, Counts>>, ReadError> {
     let Some(last) = writer::parts(path).pop() else {
         return Err(ReadError::NotFound {
             path: path.to_owned(),
@@ -256,16 +264,28 @@ pub fn holes(path: &Path) -> Result<Option<u64>, ReadError> {
     };
     let totals = mcap::read::metadata(&bytes, index).map_err(mcap_error)?;
     // Each channel's line: "written N repeats N holes N decimated N".
+    let counts = |line: &str| {
+        let mut c = Counts::default();
+        let mut words = line.split_whitespace();
+        while let (Some(key), Some(n)) = (words.next(), words.next()) {
+            let n = n.parse::<u64>().ok()?;
+            match key {
+                "written" => c.written = n,
+                "repeats" => c.repeats = n,
+                "holes" => c.holes = n,
+                "decimated" => c.decimated = n,
+                _ => return None,
+            }
+        }
+        Some(c)
+    };
     Ok(Some(
         totals
             .metadata
-            .values()
-            .filter_map(|v| {
-                let mut words = v.split_whitespace();
-                words.find(|w| *w == "holes")?;
-                words.next()?.parse::<u64>().ok()
-            })
-            .sum(),
+            .iter()
+            .filter(|(k, _)| k.starts_with('/'))
+            .filter_map(|(k, v)| Some((k.clone(), counts(v)?)))
+            .collect(),
     ))
 }
 

@@ -310,7 +310,7 @@ fn a_file_cut_anywhere_reads_in_order_up_to_the_cut() {
     assert!(previous > all.len() / 2);
 }
 
-/// `recorder::holes` reads back the steps the totals say were missed: none for a whole run, the
+/// `recorder::holes` and `recorder::totals` read back the steps the totals say were missed: none for a whole run, the
 /// step whose setpoints never came for a run with that hole, and nothing to say for a file with no
 /// totals (cut before its close).
 #[test]
@@ -341,6 +341,16 @@ fn holes_reads_the_missed_steps_from_the_totals() {
     let want: u64 = totals.counts.values().map(|c| c.holes).sum();
     assert!(want > 0, "{:?}", totals.counts);
     assert_eq!(recorder::holes(&gap).unwrap(), Some(want));
+    // Per channel, as the recorder counted them: the setpoints' one hole among 19 written.
+    let read = recorder::totals(&gap)
+        .unwrap()
+        .expect("the totals of a closed record");
+    assert_eq!(read.len(), totals.counts.len());
+    for (c, n) in &totals.counts {
+        assert_eq!(read[c.topic()], *n, "{c:?}");
+    }
+    let setpoints = read[recorder::Channel::Setpoints.topic()];
+    assert_eq!((setpoints.written, setpoints.holes), (19, 1));
 
     let bytes = std::fs::read(&whole).unwrap();
     let cut = dir.path().join("cut.mcap");

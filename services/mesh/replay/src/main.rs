@@ -9,7 +9,7 @@ use config::Dof;
 use messages::topics;
 use recorder::{CommandDof, Recorded};
 use replay::{Frames, Outputs, Played, ReplayPlant, Report};
-use runtime::lockstep::{Limits, Lockstep, Reaction};
+use runtime::lockstep::{Closed, Limits, Lockstep, Reaction, Shell};
 use runtime::{CommonArgs, Flow, Runtime, Timer};
 use std::collections::BTreeSet;
 use std::path::PathBuf;
@@ -121,7 +121,7 @@ struct Player {
 }
 
 impl Player {
-    fn publish(&mut self, plant: &ReplayPlant, step: &Played) -> anyhow::Result<()> {
+    fn send(&mut self, plant: &ReplayPlant, step: &Played) -> anyhow::Result<()> {
         let image = plant.image();
         let mut header = step.header;
         if header.stamp.is_timed() {
@@ -150,50 +150,52 @@ impl Player {
         Some(start + Duration::from_secs_f64(after))
     }
 
-    fn act(
-        &mut self,
-        lockstep: &Lockstep<ReplayPlant>,
-        r: Reaction<ReplayPlant>,
-    ) -> anyhow::Result<()> {
-        match r {
-            Reaction::Idle => {}
-            Reaction::Resend {
-                step,
-                waiting_for_mesh,
-            } => {
-                if let Some(waited) = waiting_for_mesh {
-                    tracing::info!(
-                        waited_s = waited.as_secs(),
-                        "waiting for the mesh to answer the first frame"
-                    );
-                }
-                if self.held.is_none() && !step.end {
-                    self.publish(lockstep.plant(), &step)?;
-                }
-            }
-            Reaction::Publish { next, .. } => {
-                if next.end {
-                    self.done = true;
-                } else if let Some(due) = self.due(&next).filter(|d| *d > Instant::now()) {
-                    self.held = Some((next, due));
-                } else {
-                    self.publish(lockstep.plant(), &next)?;
-                }
-            }
-            Reaction::Finished { .. } => self.done = true,
-        }
-        Ok(())
-    }
-
     /// Publishes the held frame once it is due.
     fn release(&mut self, lockstep: &Lockstep<ReplayPlant>) -> anyhow::Result<()> {
         if let Some((step, due)) = self.held
             && Instant::now() >= due
         {
             self.held = None;
-            self.publish(lockstep.plant(), &step)?;
+            self.send(lockstep.plant(), &step)?;
         }
         Ok(())
+    }
+}
+
+/// The replay's side of the lockstep: a frame goes out when the mesh answered the one before (held
+/// until its recorded time with `--speed`); the record's end ends the replay.
+impl Shell<ReplayPlant> for Player {
+    fn publish(
+        &mut self,
+        plant: &mut ReplayPlant,
+        step: &Played,
+        again: bool,
+    ) -> anyhow::Result<()> {
+        if again {
+            if self.held.is_none() && !step.end {
+                self.send(plant, step)?;
+            }
+        } else if step.end {
+            self.done = true;
+        } else if let Some(due) = self.due(step).filter(|d| *d > Instant::now()) {
+            self.held = Some((*step, due));
+        } else {
+            self.send(plant, step)?;
+        }
+        Ok(())
+    }
+
+    fn closed(&mut self, _: &Lockstep<ReplayPlant>, closed: Closed<ReplayPlant>) {
+        if closed.next.is_none() {
+            self.done = true;
+        }
+    }
+
+    fn waiting(&mut self, _: &Played, waited: Duration) {
+        tracing::info!(
+            waited_s = waited.as_secs(),
+            "waiting for the mesh to answer the first frame"
+        );
     }
 }
 
@@ -249,7 +251,7 @@ fn replay(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
         );
     }
     tracing::info!(record = %args.record.display(), pace = ?args.speed.map_or("lockstep".to_owned(), |k| format!("{k}x the recorded pace")), "replaying");
-    player.act(&lockstep, first)?;
+    lockstep.carry_out(&mut player, first)?;
     let mut replayed = Outputs::default();
     let tick = limits.tick().min(Duration::from_millis(10));
     let mut last_note = Instant::now();
@@ -258,11 +260,9 @@ fn replay(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     } else {
         rt.serve(&[&answered], Timer::Timeout(tick), |_| {
             for s in taps.drain(&mut replayed)? {
-                let r = lockstep.on_answer(s.stamp.seq, s.as_slice(), Instant::now());
-                player.act(&lockstep, r)?;
+                lockstep.answer(&mut player, s.stamp.seq, s.as_slice(), Instant::now())?;
             }
-            let r = lockstep.on_time(Instant::now());
-            player.act(&lockstep, r)?;
+            lockstep.tick(&mut player, Instant::now())?;
             player.release(&lockstep)?;
             if last_note.elapsed() >= Duration::from_secs(10) {
                 last_note = Instant::now();

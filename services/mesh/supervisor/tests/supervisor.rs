@@ -151,7 +151,7 @@ fn a_stopped_service_misses_its_heartbeat_and_is_killed_and_restarted() {
         supervisor.log()
     );
     println!("a stopped perception was restarted and beat {back:?} after SIGSTOP");
-    // The README's figure is under 1 s; a loaded 2-core machine may deschedule the supervisor or
+    // docs/operating.md's figure is under 1 s; a loaded 2-core machine may deschedule the supervisor or
     // the new process for a while: 1 s of margin.
     assert!(back < Duration::from_secs(2), "restarted after {back:?}");
     assert!(!alive(stopped), "the stuck process was killed");

@@ -22,4 +22,4 @@ mod plant;
 
 pub use clock::{Deadlines, Due, Limits, Phase};
 pub use consumer::{Gather, Once, Outcome, Partial};
-pub use plant::{Advanced, Cause, Lockstep, Plant, Reaction};
+pub use plant::{Advanced, Cause, Closed, Lockstep, Plant, Reaction, Shell};

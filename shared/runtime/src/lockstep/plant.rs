@@ -2,6 +2,7 @@
 //! next. One state machine for every plant (the simulator, the vehicle twin), fed `now`.
 
 use super::clock::{Deadlines, Due, Limits, Phase};
+use crate::Flow;
 use std::fmt::Debug;
 use std::time::{Duration, Instant};
 
@@ -121,6 +122,40 @@ impl<P: Plant> std::fmt::Debug for Reaction<P> {
     }
 }
 
+/// A closed step, as the shell hears of it: for its logs and trial records.
+#[derive(Debug)]
+pub struct Closed<P: Plant> {
+    /// The step closed (`None` for the start, which closes none).
+    pub step: Option<P::Step>,
+    /// The step published next (`None` once the requested episodes are done).
+    pub next: Option<P::Step>,
+    pub cause: Cause,
+    /// How long the closed step waited for its answer.
+    pub waited: Duration,
+    /// Steps integrated on the way and never published (the twin's dropped frames).
+    pub passed: u32,
+    /// Episodes that ended on the way.
+    pub ended: Vec<P::End>,
+}
+
+/// A plant's process (the simulator, the vehicle twin, replay): how it carries the protocol's
+/// reactions out, through its own ports. The dispatch over [`Reaction`] is written once, in
+/// [`Lockstep::carry_out`]; a process's loop only hands it answers ([`Lockstep::answer`]) and
+/// wake-ups ([`Lockstep::tick`]).
+pub trait Shell<P: Plant> {
+    /// Puts `step` out (the simulator's state, the twin's frame); `again` when the step is re-sent
+    /// because the mesh has not answered it yet.
+    fn publish(&mut self, plant: &mut P, step: &P::Step, again: bool) -> anyhow::Result<()>;
+    /// A step was closed (before its successor is published).
+    fn closed(&mut self, lockstep: &Lockstep<P>, closed: Closed<P>) {
+        let _ = (lockstep, closed);
+    }
+    /// The mesh has never answered, `waited` since the start (every [`Limits::waiting_note`]).
+    fn waiting(&mut self, step: &P::Step, waited: Duration) {
+        let _ = (step, waited);
+    }
+}
+
 /// A plant in lockstep with the mesh.
 pub struct Lockstep<P: Plant> {
     plant: P,
@@ -209,6 +244,81 @@ impl<P: Plant> Lockstep<P> {
                 waiting_for_mesh,
             },
         }
+    }
+
+    /// Carries `reaction` out through `shell`; [`Flow::Stop`] once the requested episodes are done.
+    pub fn carry_out<S: Shell<P>>(
+        &mut self,
+        shell: &mut S,
+        reaction: Reaction<P>,
+    ) -> anyhow::Result<Flow> {
+        match reaction {
+            Reaction::Idle => {}
+            Reaction::Resend {
+                step,
+                waiting_for_mesh,
+            } => {
+                if let Some(waited) = waiting_for_mesh {
+                    shell.waiting(&step, waited);
+                }
+                shell.publish(&mut self.plant, &step, true)?;
+            }
+            Reaction::Publish {
+                closed,
+                next,
+                cause,
+                waited,
+                passed,
+                ended,
+            } => {
+                let report = Closed {
+                    step: closed,
+                    next: Some(next),
+                    cause,
+                    waited,
+                    passed,
+                    ended,
+                };
+                shell.closed(self, report);
+                shell.publish(&mut self.plant, &next, false)?;
+            }
+            Reaction::Finished {
+                closed,
+                cause,
+                waited,
+                ended,
+            } => {
+                let report = Closed {
+                    step: Some(closed),
+                    next: None,
+                    cause,
+                    waited,
+                    passed: 0,
+                    ended,
+                };
+                shell.closed(self, report);
+                return Ok(Flow::Stop);
+            }
+        }
+        Ok(Flow::Continue)
+    }
+
+    /// An answer carrying `key` arrived at `now` ([`Lockstep::on_answer`]), carried out by `shell`.
+    pub fn answer<S: Shell<P>>(
+        &mut self,
+        shell: &mut S,
+        key: u64,
+        answer: &[f64],
+        now: Instant,
+    ) -> anyhow::Result<Flow> {
+        let reaction = self.on_answer(key, answer, now);
+        self.carry_out(shell, reaction)
+    }
+
+    /// A wake-up at `now` ([`Lockstep::on_time`]), carried out by `shell`.
+    pub fn tick<S: Shell<P>>(&mut self, shell: &mut S, now: Instant) -> anyhow::Result<Flow> {
+        let reaction = self.on_time(now);
+        self.carry_out(shell, reaction)
     }
 
     fn advance(&mut self, answer: Option<&[f64]>, cause: Cause, now: Instant) -> Reaction<P> {
@@ -433,5 +543,125 @@ mod tests {
             ls.on_answer(current.key, &[0.0], t0),
             Reaction::Idle
         ));
+    }
+
+    /// What a shell was asked to do, in order.
+    #[derive(Debug, PartialEq)]
+    enum Done {
+        Published {
+            key: u64,
+            again: bool,
+        },
+        Closed {
+            key: Option<u64>,
+            next: Option<u64>,
+            cause: Cause,
+            passed: u32,
+            ended: Vec<u32>,
+        },
+        Waiting {
+            key: u64,
+        },
+    }
+
+    #[derive(Default)]
+    struct Recording(Vec<Done>);
+
+    impl Shell<Toy> for Recording {
+        fn publish(&mut self, _: &mut Toy, step: &ToyStep, again: bool) -> anyhow::Result<()> {
+            self.0.push(Done::Published {
+                key: step.key,
+                again,
+            });
+            Ok(())
+        }
+        fn closed(&mut self, _: &Lockstep<Toy>, c: Closed<Toy>) {
+            self.0.push(Done::Closed {
+                key: c.step.map(|s| s.key),
+                next: c.next.map(|s| s.key),
+                cause: c.cause,
+                passed: c.passed,
+                ended: c.ended,
+            });
+        }
+        fn waiting(&mut self, step: &ToyStep, _: Duration) {
+            self.0.push(Done::Waiting { key: step.key });
+        }
+    }
+
+    #[test]
+    fn the_shell_hears_every_closed_step_before_its_successor_goes_out_and_stops_at_the_end() {
+        let t0 = Instant::now();
+        let mut shell = Recording::default();
+        let (mut ls, first) = Lockstep::start(Toy::new(4), limits(), 1, t0);
+        assert_eq!(ls.carry_out(&mut shell, first).unwrap(), Flow::Continue);
+        // Before the mesh answers: re-sent, and the wait noted once it is long.
+        let late = t0 + Limits::new(100 * MS, 2000 * MS).waiting_note;
+        assert_eq!(ls.tick(&mut shell, late).unwrap(), Flow::Continue);
+        // Another step's answer is ignored; the current one's advances (key 3 is passed on the way).
+        assert_eq!(
+            ls.answer(&mut shell, 9, &[0.0], late).unwrap(),
+            Flow::Continue
+        );
+        assert_eq!(
+            ls.answer(&mut shell, 1, &[0.0], late).unwrap(),
+            Flow::Continue
+        );
+        assert_eq!(
+            ls.answer(&mut shell, 2, &[0.0], late).unwrap(),
+            Flow::Continue
+        );
+        assert_eq!(ls.answer(&mut shell, 4, &[0.0], late).unwrap(), Flow::Stop);
+        use Done::*;
+        assert_eq!(
+            shell.0,
+            vec![
+                Closed {
+                    key: None,
+                    next: Some(1),
+                    cause: Cause::Start,
+                    passed: 0,
+                    ended: vec![]
+                },
+                Published {
+                    key: 1,
+                    again: false
+                },
+                Waiting { key: 1 },
+                Published {
+                    key: 1,
+                    again: true
+                },
+                Closed {
+                    key: Some(1),
+                    next: Some(2),
+                    cause: Cause::Answered,
+                    passed: 0,
+                    ended: vec![]
+                },
+                Published {
+                    key: 2,
+                    again: false
+                },
+                Closed {
+                    key: Some(2),
+                    next: Some(4),
+                    cause: Cause::Answered,
+                    passed: 1,
+                    ended: vec![]
+                },
+                Published {
+                    key: 4,
+                    again: false
+                },
+                Closed {
+                    key: Some(4),
+                    next: None,
+                    cause: Cause::Answered,
+                    passed: 0,
+                    ended: vec![0]
+                },
+            ]
+        );
     }
 }
