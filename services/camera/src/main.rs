@@ -7,7 +7,9 @@ use adapters::replay::{Pacing, ReplaySource};
 use adapters::twin::TwinFrameSource;
 use adapters::{AdapterError, Frame, FrameSource, Wake};
 use camera::SimCamera;
-use camera::vehicle::{Publish, SeqMap, SourceSpec, VehicleCamera};
+use camera::vehicle::{
+    Publish, SeqMap, SourceSpec, UnitInfo, UnitVerdict, VehicleCamera, VideoUnits,
+};
 use clap::Parser;
 use config::Eyes;
 use messages::{Endpoint, topics};
@@ -81,16 +83,20 @@ const QUIET_NOTE: Duration = Duration::from_secs(5);
 fn serve_vehicle(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     let c = &rt.scenario().camera;
     let spec = args.source.clone().unwrap_or(SourceSpec::Twin);
-    let source: Box<dyn FrameSource> = match &spec {
+    let (source, units): (Box<dyn FrameSource>, _) = match &spec {
         SourceSpec::Twin => {
             if args.speed.is_some() {
                 anyhow::bail!("--speed paces a replay; the twin's pace is the twin's own");
             }
-            Box::new(TwinFrameSource::open(rt.node(), c.width, c.height)?)
+            let twin = TwinFrameSource::open(rt.node(), c.width, c.height)?;
+            (Box::new(twin), None)
         }
         SourceSpec::Replay(dir) => {
             let speed = args.speed.unwrap_or(1.0);
-            Box::new(ReplaySource::open(dir, Pacing::Speed(speed))?)
+            (
+                Box::new(ReplaySource::open(dir, Pacing::Speed(speed))?),
+                None,
+            )
         }
         SourceSpec::Rtp(addr) => {
             if args.speed.is_some() {
@@ -102,6 +108,15 @@ fn serve_vehicle(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     let clock = *rt.clock();
     let mut camera = VehicleCamera::new((c.width, c.height), SeqMap::new(0), clock.new_epoch());
     camera.check(source.as_ref()).map_err(anyhow::Error::msg)?;
+    // A compressed source's stream as it arrived, for the flight record.
+    let mut video = match units {
+        Some(units) => Some(Video {
+            units,
+            outbox: rt.video_outbox()?,
+            gate: VideoUnits::new(camera.epoch(), messages::topics::MAX_ACCESS_UNIT),
+        }),
+        None => None,
+    };
     let frames = rt.frame_outbox()?;
     let (inputs, timer) = match source.wake() {
         Wake::Listener(l) => (vec![Input::Listener(l)], Timer::Timeout(QUIET_NOTE)),
@@ -113,6 +128,10 @@ fn serve_vehicle(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     let mut last_frame = Instant::now();
     let mut refusals = Tally::default();
     rt.serve_inputs(&inputs, timer, |_| {
+        // The units decoded so far first: a frame is published after the unit it decodes from.
+        if let Some(v) = &mut video {
+            v.publish(clock.now_ns())?;
+        }
         // Every frame due now, in order: the mesh answers each step once.
         loop {
             let now = Instant::now();
@@ -157,15 +176,82 @@ fn serve_vehicle(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The RTP/H.264 source on `addr`, frames scaled to the scenario's camera.
+/// The access units a compressed source gave its decoder.
+type Units = std::sync::mpsc::Receiver<DecodedUnit>;
+
+/// The camera's video for the record: the source's units published on `topics::CAMERA_VIDEO`.
+struct Video {
+    units: Units,
+    outbox: messages::VideoOutbox,
+    gate: VideoUnits,
+}
+
+impl Video {
+    /// Publishes every unit waiting.
+    fn publish(&mut self, clock_ns: i64) -> anyhow::Result<()> {
+        while let Ok(unit) = self.units.try_recv() {
+            let (info, bytes) = unit_parts(unit);
+            match self.gate.next(&info, clock_ns) {
+                UnitVerdict::Publish(header) => {
+                    self.outbox.send_with(header, bytes.len(), |out| {
+                        out.copy_from_slice(&bytes);
+                        Ok::<_, Infallible>(())
+                    })??;
+                }
+                UnitVerdict::TooLarge { number, len } => tracing::warn!(
+                    number,
+                    bytes = len,
+                    max = messages::topics::MAX_ACCESS_UNIT,
+                    "an access unit too large for the video topic: it and the units up to the next keyframe are left out of the record"
+                ),
+                UnitVerdict::Skipped => {}
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How many access units wait for the camera's loop at most; a full queue loses units (the
+/// source counts them), never the stream.
+#[cfg(feature = "video")]
+const UNITS_QUEUED: usize = 64;
+
+#[cfg(feature = "video")]
+use video::source::DecodedUnit;
+
+#[cfg(feature = "video")]
+fn unit_parts(u: DecodedUnit) -> (UnitInfo, Vec<u8>) {
+    let info = UnitInfo {
+        len: u.unit.bytes.len(),
+        keyframe: u.unit.keyframe,
+        damaged: u.unit.damaged,
+        decoder_restarted: u.decoder_restarted,
+        time_ns: u.time_ns,
+        session: u.unit.session,
+    };
+    (info, u.unit.bytes)
+}
+
+/// The RTP/H.264 source on `addr`, frames scaled to the scenario's camera, and its access units.
 #[cfg(feature = "video")]
 fn rtp_source(
     addr: std::net::SocketAddr,
     width: u32,
     height: u32,
-) -> anyhow::Result<Box<dyn FrameSource>> {
-    let config = video::source::SourceConfig::new(addr, width, height);
-    Ok(Box::new(video::source::RtpSource::open(config)?))
+) -> anyhow::Result<(Box<dyn FrameSource>, Option<Units>)> {
+    let (tx, rx) = std::sync::mpsc::sync_channel(UNITS_QUEUED);
+    let mut config = video::source::SourceConfig::new(addr, width, height);
+    config.access_units = Some(tx);
+    Ok((Box::new(video::source::RtpSource::open(config)?), Some(rx)))
+}
+
+/// Without the video path there are no units.
+#[cfg(not(feature = "video"))]
+enum DecodedUnit {}
+
+#[cfg(not(feature = "video"))]
+fn unit_parts(u: DecodedUnit) -> (UnitInfo, Vec<u8>) {
+    match u {}
 }
 
 #[cfg(not(feature = "video"))]
@@ -173,7 +259,7 @@ fn rtp_source(
     addr: std::net::SocketAddr,
     _width: u32,
     _height: u32,
-) -> anyhow::Result<Box<dyn FrameSource>> {
+) -> anyhow::Result<(Box<dyn FrameSource>, Option<Units>)> {
     anyhow::bail!(
         "--source rtp:{addr}: this camera was built without the RTP/H.264 video path; install \
          GStreamer (scripts/install-gstreamer) and build it with `cargo build --release -p camera \

@@ -18,7 +18,7 @@
 //! dive's timestamps (the camera wakes at the dive's pace). The camera itself never sleeps.
 
 use adapters::{FrameMeta, FrameSource, Read};
-use messages::{CameraFrameHeader, Stamp};
+use messages::{CameraFrameHeader, Stamp, VideoUnit};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
@@ -192,6 +192,91 @@ impl VehicleCamera {
     }
 }
 
+/// An access unit the camera's decoder got, as the frame source hands it over for the record.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct UnitInfo {
+    pub len: usize,
+    pub keyframe: bool,
+    pub damaged: bool,
+    pub decoder_restarted: bool,
+    /// The time of the frame it decodes to (`FrameMeta::time_ns`).
+    pub time_ns: u64,
+    pub session: u64,
+}
+
+/// The camera's video units for the record (`topics::CAMERA_VIDEO`): numbered in the order its
+/// decoder got them, at most `max_len` bytes. A larger unit is not published, nor are the units
+/// after it up to the next keyframe (they reference it): the record's stream stays decodable, and
+/// the gap shows in the numbers.
+pub struct VideoUnits {
+    epoch: u32,
+    max_len: usize,
+    number: u64,
+    /// A unit was too large: waiting for a keyframe.
+    skipping: bool,
+    /// Units not published.
+    pub dropped: u64,
+}
+
+/// What to do with one unit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UnitVerdict {
+    Publish(VideoUnit),
+    /// Larger than the topic takes (said once per stretch, by the caller).
+    TooLarge {
+        number: u64,
+        len: usize,
+    },
+    /// After a unit too large, before the next keyframe.
+    Skipped,
+}
+
+impl VideoUnits {
+    pub fn new(epoch: u32, max_len: usize) -> Self {
+        VideoUnits {
+            epoch,
+            max_len,
+            number: 0,
+            skipping: false,
+            dropped: 0,
+        }
+    }
+
+    /// The verdict on the decoder's next unit, read at `clock_ns` on the vehicle clock.
+    pub fn next(&mut self, unit: &UnitInfo, clock_ns: i64) -> UnitVerdict {
+        self.number += 1;
+        if unit.len > self.max_len {
+            self.skipping = true;
+            self.dropped += 1;
+            return UnitVerdict::TooLarge {
+                number: self.number,
+                len: unit.len,
+            };
+        }
+        if self.skipping && !unit.keyframe {
+            self.dropped += 1;
+            return UnitVerdict::Skipped;
+        }
+        self.skipping = false;
+        let flags = [
+            (unit.keyframe, VideoUnit::KEYFRAME),
+            (unit.damaged, VideoUnit::DAMAGED),
+            (unit.decoder_restarted, VideoUnit::DECODER_RESTARTED),
+        ]
+        .iter()
+        .filter(|(on, _)| *on)
+        .fold(0, |f, (_, bit)| f | bit);
+        UnitVerdict::Publish(VideoUnit {
+            number: self.number,
+            time_ns: unit.time_ns,
+            clock_ns,
+            epoch: self.epoch,
+            flags,
+            session: unit.session,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -284,5 +369,56 @@ mod tests {
         let damaged = FrameMeta { damaged: true, ..m };
         assert!(header(&damaged, 1, 42, 1).is_damaged());
         assert_eq!(cam.published(), 1);
+    }
+
+    /// Units are numbered in the decoder's order; one too large is left out with the units that
+    /// reference it, up to the next keyframe.
+    #[test]
+    fn a_unit_too_large_is_left_out_up_to_the_next_keyframe() {
+        let mut v = VideoUnits::new(7, 1000);
+        let unit = |len, keyframe| UnitInfo {
+            len,
+            keyframe,
+            time_ns: len as u64,
+            session: 1,
+            ..Default::default()
+        };
+        let UnitVerdict::Publish(first) = v.next(&unit(900, true), 5) else {
+            panic!()
+        };
+        assert_eq!(
+            first,
+            VideoUnit {
+                number: 1,
+                time_ns: 900,
+                clock_ns: 5,
+                epoch: 7,
+                flags: VideoUnit::KEYFRAME,
+                session: 1
+            }
+        );
+        assert!(
+            matches!(v.next(&unit(10, false), 6), UnitVerdict::Publish(u) if u.number == 2 && u.flags == 0)
+        );
+        assert_eq!(
+            v.next(&unit(1001, false), 7),
+            UnitVerdict::TooLarge {
+                number: 3,
+                len: 1001
+            }
+        );
+        assert_eq!(v.next(&unit(10, false), 8), UnitVerdict::Skipped);
+        let UnitVerdict::Publish(key) = v.next(&unit(20, true), 9) else {
+            panic!()
+        };
+        assert_eq!((key.number, key.is_keyframe()), (5, true));
+        assert_eq!(v.dropped, 2);
+        let restarted = UnitInfo {
+            damaged: true,
+            decoder_restarted: true,
+            ..unit(10, false)
+        };
+        assert!(matches!(v.next(&restarted, 10), UnitVerdict::Publish(u)
+            if u.flags == VideoUnit::DAMAGED | VideoUnit::DECODER_RESTARTED));
     }
 }

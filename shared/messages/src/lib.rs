@@ -42,7 +42,10 @@ pub use payload::{
     CameraFrameHeader, DofCommand, LearningStats, Mission, MissionCommand, RecorderStatus,
     SERVO_CHANNELS, STATUS_TEXT_LEN, ServiceEvent, ServoOutputs, SetpointsForm, Stamp, Stamped,
     StatusText, StepStatus, StopCause, SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
-    ardusub_mode_name,
+    VideoUnit, ardusub_mode_name,
 };
-pub use ports::{FrameInbox, FrameOutbox, FrameTap, Heartbeat, Inbox, Outbox, PortError, Tap};
+pub use ports::{
+    FrameInbox, FrameOutbox, FrameTap, Heartbeat, Inbox, Outbox, PortError, Tap, VideoInbox,
+    VideoOutbox, VideoTap,
+};
 pub use topics::{Endpoint, Qos, Topic};

@@ -292,6 +292,44 @@ impl CameraFrameHeader {
     }
 }
 
+/// One access unit of the camera's H.264 stream, as it arrived (the header of a
+/// [`crate::topics::CAMERA_VIDEO`] sample; the unit's bytes, Annex B, are the sample's slice).
+/// Published by the camera for every unit it gives its decoder, in that order, so that the units
+/// recorded decode to the frames the mesh saw.
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, Serialize, Deserialize, JsonSchema,
+)]
+#[repr(C)]
+#[type_name("cabletrack::VideoUnit/1")]
+pub struct VideoUnit {
+    /// The camera's count of units given to its decoder, from 1 within its `epoch`.
+    pub number: u64,
+    /// The time of the frame it decodes to (ns): the `Stamp::time_ns` of that frame on the camera
+    /// topic (the twin's time from the frame's metadata, or the camera's RTP clock).
+    pub time_ns: u64,
+    /// The vehicle clock (ns) when the camera published it (the clock of `Stamp::clock_ns`).
+    pub clock_ns: i64,
+    /// The camera's epoch (`Stamp::epoch`): new at each start of the camera, whose decoder starts
+    /// afresh.
+    pub epoch: u32,
+    /// Bits: 1 keyframe (an IDR picture, with its SPS and PPS), 2 damaged (a packet of it or of
+    /// what it references since the last keyframe is missing), 4 the decoder was started afresh
+    /// before it (after an error: what it held is gone).
+    pub flags: u32,
+    /// The stream session (the sender's SSRC) it belongs to, from 1.
+    pub session: u64,
+}
+
+impl VideoUnit {
+    pub const KEYFRAME: u32 = 1;
+    pub const DAMAGED: u32 = 2;
+    pub const DECODER_RESTARTED: u32 = 4;
+
+    pub fn is_keyframe(&self) -> bool {
+        self.flags & Self::KEYFRAME != 0
+    }
+}
+
 /// What perception found in a frame: an estimate of the cable's line and its rates.
 #[derive(
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize, JsonSchema,

@@ -8,7 +8,7 @@
 //! event service announces a publisher whose process died ([`PUBLISHER_DIED`]) once its leftovers
 //! are removed, so a consumer blocked on it learns of the death at once.
 
-use crate::payload::CameraFrameHeader;
+use crate::payload::{CameraFrameHeader, VideoUnit};
 use crate::topics::{Endpoint, Topic};
 use iceoryx2::identifiers::UniqueNodeId;
 use iceoryx2::node::NodeView;
@@ -22,7 +22,13 @@ use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use std::fmt::Debug;
 
 type Ipc = ipc::Service;
-type FrameFactory = PortFactory<Ipc, [u8], CameraFrameHeader>;
+type SliceFactory<H> = PortFactory<Ipc, [u8], H>;
+
+/// The header of a slice topic's samples: the camera's frames ([`CameraFrameHeader`]), its video
+/// ([`VideoUnit`]).
+pub trait SliceHeader: Debug + Copy + Default + ZeroCopySend + 'static {}
+impl SliceHeader for CameraFrameHeader {}
+impl SliceHeader for VideoUnit {}
 
 /// A port could not be opened or used; names the service.
 #[derive(Debug, thiserror::Error)]
@@ -403,15 +409,15 @@ pub fn take_notifications(listener: &Listener<Ipc>) -> Notified {
     n
 }
 
-fn open_frames_service(
+fn open_slice_service<H: SliceHeader>(
     node: &Node<Ipc>,
     service: &str,
     topic: &Topic<[u8]>,
-) -> Result<FrameFactory, PortError> {
+) -> Result<SliceFactory<H>, PortError> {
     let q = &topic.qos;
     node.service_builder(&service_name(service)?)
         .publish_subscribe::<[u8]>()
-        .user_header::<CameraFrameHeader>()
+        .user_header::<H>()
         .history_size(q.history)
         .subscriber_max_buffer_size(q.buffer.max(q.recorder_buffer))
         .enable_safe_overflow(true)
@@ -422,25 +428,57 @@ fn open_frames_service(
         .map_err(|e| fail(service, "cannot open the topic")(&e))
 }
 
-/// Publishes camera frames: the image is written straight into shared memory.
-pub struct FrameOutbox {
+/// Publishes a slice topic's samples (a header and bytes) straight into shared memory.
+pub struct SliceOutbox<H: SliceHeader> {
     service: String,
-    factory: FrameFactory,
-    publisher: Publisher<Ipc, [u8], CameraFrameHeader>,
+    factory: SliceFactory<H>,
+    publisher: Publisher<Ipc, [u8], H>,
     notifier: Notifier<Ipc>,
     max_len: usize,
 }
 
-impl FrameOutbox {
-    /// Subscribers connected now.
-    pub fn subscribers(&self) -> usize {
-        self.factory.dynamic_config().number_of_subscribers()
-    }
+/// Publishes camera frames: the image is written straight into shared memory.
+pub type FrameOutbox = SliceOutbox<CameraFrameHeader>;
+/// Publishes the camera's video, an access unit a sample.
+pub type VideoOutbox = SliceOutbox<VideoUnit>;
 
+impl FrameOutbox {
     /// A publisher of frames of at most `max_len` bytes.
     pub fn open(node: &Node<Ipc>, endpoint: Endpoint, max_len: usize) -> Result<Self, PortError> {
         let topic = crate::topics::CAMERA_FRAME;
         Self::open_service(node, &topic.service_name(endpoint), &topic, max_len)
+    }
+}
+
+impl VideoOutbox {
+    /// A publisher of access units of at most [`crate::topics::MAX_ACCESS_UNIT`] bytes; its shared
+    /// memory starts at 64 KiB a sample and grows (doubling) with the largest unit sent.
+    pub fn open(node: &Node<Ipc>, endpoint: Endpoint) -> Result<Self, PortError> {
+        let topic = crate::topics::CAMERA_VIDEO;
+        let service = topic.service_name(endpoint);
+        let factory = open_slice_service(node, &service, &topic)?;
+        check_exclusive(node, &service, &topic.qos, &factory)?;
+        let publisher = factory
+            .publisher_builder()
+            .initial_max_slice_len(64 << 10)
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .create()
+            .map_err(|e| fail(&service, "cannot create a publisher")(&e))?;
+        Self::with_publisher(
+            node,
+            service,
+            &topic,
+            factory,
+            publisher,
+            crate::topics::MAX_ACCESS_UNIT,
+        )
+    }
+}
+
+impl<H: SliceHeader> SliceOutbox<H> {
+    /// Subscribers connected now.
+    pub fn subscribers(&self) -> usize {
+        self.factory.dynamic_config().number_of_subscribers()
     }
 
     /// A publisher of frames of at most `max_len` bytes on a frame topic named in full (the hardware
@@ -451,19 +489,30 @@ impl FrameOutbox {
         topic: &Topic<[u8]>,
         max_len: usize,
     ) -> Result<Self, PortError> {
-        let factory = open_frames_service(node, service, topic)?;
+        let factory = open_slice_service(node, service, topic)?;
         check_exclusive(node, service, &topic.qos, &factory)?;
         let publisher = factory
             .publisher_builder()
             .initial_max_slice_len(max_len.max(1))
             .create()
             .map_err(|e| fail(service, "cannot create a publisher")(&e))?;
-        let notifier = open_event(node, service, &topic.qos)?
+        Self::with_publisher(node, service.to_owned(), topic, factory, publisher, max_len)
+    }
+
+    fn with_publisher(
+        node: &Node<Ipc>,
+        service: String,
+        topic: &Topic<[u8]>,
+        factory: SliceFactory<H>,
+        publisher: Publisher<Ipc, [u8], H>,
+        max_len: usize,
+    ) -> Result<Self, PortError> {
+        let notifier = open_event(node, &service, &topic.qos)?
             .notifier_builder()
             .create()
-            .map_err(|e| fail(service, "cannot create a notifier")(&e))?;
-        Ok(FrameOutbox {
-            service: service.to_owned(),
+            .map_err(|e| fail(&service, "cannot create a notifier")(&e))?;
+        Ok(SliceOutbox {
+            service,
             factory,
             publisher,
             notifier,
@@ -471,7 +520,7 @@ impl FrameOutbox {
         })
     }
 
-    /// The largest image this publisher sends (bytes).
+    /// The largest slice this publisher sends (bytes).
     pub fn max_len(&self) -> usize {
         self.max_len
     }
@@ -480,14 +529,14 @@ impl FrameOutbox {
     /// `header`. `fill` sees zeroed bytes.
     pub fn send_with<E>(
         &self,
-        header: CameraFrameHeader,
+        header: H,
         len: usize,
         fill: impl FnOnce(&mut [u8]) -> Result<(), E>,
     ) -> Result<Result<(), E>, PortError> {
         if len > self.max_len {
             return Err(PortError {
                 service: self.service.clone(),
-                what: "frame too large",
+                what: "sample too large",
                 reason: format!("{len} bytes, the publisher holds at most {}", self.max_len),
             });
         }
@@ -510,34 +559,48 @@ impl FrameOutbox {
     }
 }
 
-/// Receives camera frames without copying them.
-pub struct FrameInbox {
+/// Receives a slice topic's samples without copying them.
+pub struct SliceInbox<H: SliceHeader> {
     service: String,
-    factory: FrameFactory,
-    subscriber: Subscriber<Ipc, [u8], CameraFrameHeader>,
+    factory: SliceFactory<H>,
+    subscriber: Subscriber<Ipc, [u8], H>,
     listener: Listener<Ipc>,
 }
+
+/// Receives camera frames without copying them.
+pub type FrameInbox = SliceInbox<CameraFrameHeader>;
+/// Receives the camera's video.
+pub type VideoInbox = SliceInbox<VideoUnit>;
 
 impl FrameInbox {
     pub fn open(node: &Node<Ipc>, endpoint: Endpoint) -> Result<Self, PortError> {
         let topic = crate::topics::CAMERA_FRAME;
         Self::open_service(node, &topic.service_name(endpoint), &topic)
     }
+}
 
+impl VideoInbox {
+    pub fn open(node: &Node<Ipc>, endpoint: Endpoint) -> Result<Self, PortError> {
+        let topic = crate::topics::CAMERA_VIDEO;
+        Self::open_service(node, &topic.service_name(endpoint), &topic)
+    }
+}
+
+impl<H: SliceHeader> SliceInbox<H> {
     /// A subscriber of a frame topic named in full (see [`FrameOutbox::open_service`]).
     pub fn open_service(
         node: &Node<Ipc>,
         service: &str,
         topic: &Topic<[u8]>,
     ) -> Result<Self, PortError> {
-        let factory = open_frames_service(node, service, topic)?;
+        let factory = open_slice_service(node, service, topic)?;
         let subscriber = factory
             .subscriber_builder()
             .buffer_size(topic.qos.buffer)
             .create()
             .map_err(|e| fail(service, "cannot create a subscriber")(&e))?;
         let listener = open_listener(node, service, &topic.qos)?;
-        Ok(FrameInbox {
+        Ok(SliceInbox {
             service: service.to_owned(),
             factory,
             subscriber,
@@ -546,10 +609,7 @@ impl FrameInbox {
     }
 
     /// Calls `f` with the next unread frame (header and image, in shared memory), if any.
-    pub fn receive_with<R>(
-        &self,
-        f: impl FnOnce(&CameraFrameHeader, &[u8]) -> R,
-    ) -> Result<Option<R>, PortError> {
+    pub fn receive_with<R>(&self, f: impl FnOnce(&H, &[u8]) -> R) -> Result<Option<R>, PortError> {
         match self.subscriber.receive() {
             Ok(Some(sample)) => Ok(Some(f(sample.user_header(), sample.payload()))),
             Ok(None) => Ok(None),
@@ -608,32 +668,49 @@ impl<P: Payload> Tap<P> {
     }
 }
 
-/// A recording subscriber of the camera's frames (see [`Tap`]).
-pub struct FrameTap {
+/// A recording subscriber of a slice topic (see [`Tap`]).
+pub struct SliceTap<H: SliceHeader> {
     service: String,
-    subscriber: Subscriber<Ipc, [u8], CameraFrameHeader>,
+    subscriber: Subscriber<Ipc, [u8], H>,
 }
+
+/// A recording subscriber of the camera's frames.
+pub type FrameTap = SliceTap<CameraFrameHeader>;
+/// A recording subscriber of the camera's video.
+pub type VideoTap = SliceTap<VideoUnit>;
 
 impl FrameTap {
     pub fn open(node: &Node<Ipc>, endpoint: Endpoint) -> Result<Self, PortError> {
-        let topic = crate::topics::CAMERA_FRAME;
+        Self::open_topic(node, endpoint, &crate::topics::CAMERA_FRAME)
+    }
+}
+
+impl VideoTap {
+    pub fn open(node: &Node<Ipc>, endpoint: Endpoint) -> Result<Self, PortError> {
+        Self::open_topic(node, endpoint, &crate::topics::CAMERA_VIDEO)
+    }
+}
+
+impl<H: SliceHeader> SliceTap<H> {
+    fn open_topic(
+        node: &Node<Ipc>,
+        endpoint: Endpoint,
+        topic: &Topic<[u8]>,
+    ) -> Result<Self, PortError> {
         let service = topic.service_name(endpoint);
-        let subscriber = open_frames_service(node, &service, &topic)?
+        let subscriber = open_slice_service(node, &service, topic)?
             .subscriber_builder()
             .buffer_size(topic.qos.recorder_buffer)
             .create()
             .map_err(|e| fail(&service, "cannot create a subscriber")(&e))?;
-        Ok(FrameTap {
+        Ok(SliceTap {
             service,
             subscriber,
         })
     }
 
     /// Calls `f` with the next unread frame (header and image, in shared memory), if any.
-    pub fn receive_with<R>(
-        &self,
-        f: impl FnOnce(&CameraFrameHeader, &[u8]) -> R,
-    ) -> Result<Option<R>, PortError> {
+    pub fn receive_with<R>(&self, f: impl FnOnce(&H, &[u8]) -> R) -> Result<Option<R>, PortError> {
         match self.subscriber.receive() {
             Ok(Some(sample)) => Ok(Some(f(sample.user_header(), sample.payload()))),
             Ok(None) => Ok(None),

@@ -145,6 +145,30 @@ pub const CAMERA_FRAME: Topic<[u8]> = Topic::new(
     },
 );
 
+/// The camera's compressed video, where its source has one (an RTP/H.264 stream): each access
+/// unit it decodes, as it arrived (Annex B), as a `[u8]` slice with a [`VideoUnit`] header, for
+/// the flight recorder. At most [`MAX_ACCESS_UNIT`] bytes a unit: the camera does not publish a
+/// larger one, nor the units after it up to the next keyframe (they reference it).
+pub const CAMERA_VIDEO: Topic<[u8]> = Topic::new(
+    "camera_video",
+    Qos {
+        // A late recorder starts at a keyframe, not with history: none.
+        history: 0,
+        buffer: 8,
+        // 13 s at the twin's 5 frames/s, 2 s of a 30 frames/s camera. The shared memory grows
+        // with the largest unit sent (`ports`), so it costs little at the twin's sizes.
+        recorder_buffer: 64,
+        max_publishers: 2,
+        // The recorder, a test's probe.
+        max_subscribers: 4,
+        max_nodes: 16,
+    },
+);
+
+/// The largest access unit published on [`CAMERA_VIDEO`]: a 1080p keyframe of a camera at
+/// 10 Mbit/s is about 300 kB.
+pub const MAX_ACCESS_UNIT: usize = 2 << 20;
+
 /// What perception found in each frame.
 pub const CABLE_OBSERVATION: Topic<CableObservationMsg> = Topic::new("cable_observation", STEP);
 
@@ -332,6 +356,7 @@ const _: () = {
     let qos = [
         VEHICLE_STATE.qos,
         CAMERA_FRAME.qos,
+        CAMERA_VIDEO.qos,
         CABLE_OBSERVATION.qos,
         THRUSTER_SETPOINTS.qos,
         STATS,

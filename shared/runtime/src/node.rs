@@ -5,7 +5,7 @@ use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use messages::{
     Endpoint, FrameInbox, FrameOutbox, FrameTap, Heartbeat, Inbox, Outbox, PortError, Tap, Topic,
-    ports::Payload,
+    VideoOutbox, VideoTap, ports::Payload,
 };
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -356,6 +356,16 @@ impl Runtime {
     /// A recording subscriber of the camera's frames.
     pub fn frame_tap(&self) -> Result<FrameTap, PortError> {
         FrameTap::open(&self.node, self.endpoint)
+    }
+
+    /// The camera's video publisher (`topics::CAMERA_VIDEO`).
+    pub fn video_outbox(&self) -> Result<VideoOutbox, PortError> {
+        VideoOutbox::open(&self.node, self.endpoint)
+    }
+
+    /// A recording subscriber of the camera's video.
+    pub fn video_tap(&self) -> Result<VideoTap, PortError> {
+        VideoTap::open(&self.node, self.endpoint)
     }
 
     /// A listener notified after each message on `topic`, without a subscriber.

@@ -90,6 +90,72 @@ pub fn nal_units(stream: &[u8]) -> impl Iterator<Item = &[u8]> {
     })
 }
 
+/// The types of the NAL units of an Annex B access unit, in order.
+pub fn nal_types(au: &[u8]) -> Vec<u8> {
+    nal_units(au).map(|u| nal_type(u[0])).collect()
+}
+
+/// The last SPS and PPS seen on a stream, so that every keyframe carries its own: a camera that
+/// sends its parameter sets once, or out of band, leaves keyframes a recording cannot start at
+/// (Foxglove's `CompressedVideo` asks for the SPS in every keyframe's message). Inserting the
+/// same parameter sets again changes no decoded picture.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ParameterSets {
+    sps: Option<Vec<u8>>,
+    pps: Option<Vec<u8>>,
+}
+
+impl ParameterSets {
+    /// Remembers the SPS and PPS of `au` (Annex B); when it holds an IDR picture without an SPS
+    /// or PPS of its own, writes the last ones seen before its first slice. Whether it wrote
+    /// them.
+    pub fn complete(&mut self, au: &mut Vec<u8>) -> bool {
+        let (mut idr, mut sps, mut pps) = (false, false, false);
+        for u in nal_units(au) {
+            match nal_type(u[0]) {
+                nal::SPS => {
+                    sps = true;
+                    self.sps = Some(u.to_vec());
+                }
+                nal::PPS => {
+                    pps = true;
+                    self.pps = Some(u.to_vec());
+                }
+                nal::IDR => idr = true,
+                _ => {}
+            }
+        }
+        if !idr || (sps && pps) {
+            return false;
+        }
+        let mut insert = Vec::new();
+        for (have, set) in [(sps, &self.sps), (pps, &self.pps)] {
+            if let (false, Some(set)) = (have, set) {
+                insert.extend_from_slice(&START_CODE);
+                insert.extend_from_slice(set);
+            }
+        }
+        if insert.is_empty() {
+            return false;
+        }
+        // Before the first slice: after a delimiter, an SEI, and the unit's own SPS.
+        let at = nal_units(au)
+            .find(|u| (nal::SLICE..=nal::IDR).contains(&nal_type(u[0])))
+            .map_or(au.len(), |u| start_of(au, u));
+        au.splice(at..at, insert);
+        true
+    }
+}
+
+/// Where the start code of `unit` (a slice of `au`) begins.
+fn start_of(au: &[u8], unit: &[u8]) -> usize {
+    let mut at = unit.as_ptr() as usize - au.as_ptr() as usize - 3;
+    if at > 0 && au[at - 1] == 0 {
+        at -= 1;
+    }
+    at
+}
+
 /// The RTP payloads of one access unit (`au` in Annex B form), each at most `max_payload` bytes:
 /// single NAL unit packets and FU-A fragments, in order. Access unit delimiters are left out (the
 /// marker bit ends an access unit on RTP). The caller sets the marker on the last one.
@@ -280,10 +346,10 @@ mod tests {
         (au, units)
     }
 
-    fn annex_b(units: &[Vec<u8>]) -> Vec<u8> {
+    fn annex_b<U: AsRef<[u8]>>(units: &[U]) -> Vec<u8> {
         units
             .iter()
-            .flat_map(|u| START_CODE.iter().chain(u.iter()).copied())
+            .flat_map(|u| START_CODE.iter().chain(u.as_ref().iter()).copied())
             .collect()
     }
 
@@ -420,5 +486,36 @@ mod tests {
         assert_eq!(d.push(&[0x7C]), Err(H264Error::BadFragment));
         assert_eq!(d.push(&[0x7C, 0x80 | 28, 1]), Err(H264Error::BadFragment));
         assert!(d.is_empty());
+    }
+
+    #[test]
+    fn a_keyframe_without_parameter_sets_gets_the_last_ones() {
+        let (aud, sps, pps) = (
+            &[0x09u8, 0xF0][..],
+            &[0x67u8, 1, 2, 3][..],
+            &[0x68u8, 4][..],
+        );
+        let (idr, slice) = (&[0x65u8, 7, 7][..], &[0x41u8, 8][..]);
+        let mut sets = ParameterSets::default();
+        // A keyframe before any parameter set: nothing to give it.
+        let mut first = annex_b(&[idr]);
+        assert!(!sets.complete(&mut first));
+        assert_eq!(first, annex_b(&[idr]));
+        // The sets come once, with a keyframe that needs nothing.
+        let mut whole = annex_b(&[sps, pps, idr]);
+        assert!(!sets.complete(&mut whole));
+        assert_eq!(whole, annex_b(&[sps, pps, idr]));
+        // A delta frame is left alone; a later keyframe gets both, after its delimiter.
+        let mut delta = annex_b(&[slice]);
+        assert!(!sets.complete(&mut delta));
+        let mut bare = annex_b(&[aud, idr]);
+        assert!(sets.complete(&mut bare));
+        assert_eq!(bare, annex_b(&[aud, sps, pps, idr]));
+        assert_eq!(nal_types(&bare), vec![9, 7, 8, 5]);
+        // One with its own SPS but no PPS gets the PPS only.
+        let sps2 = &[0x67u8, 9][..];
+        let mut half = annex_b(&[sps2, idr]);
+        assert!(sets.complete(&mut half));
+        assert_eq!(half, annex_b(&[sps2, pps, idr]));
     }
 }

@@ -17,13 +17,17 @@
 //!   core above, then GStreamer's H.264 decoder scaling every frame to the camera's size; one frame
 //!   per read, the newest;
 //! - `sender::RtpSender`: the twin's camera on the same wire: x264 through GStreamer, our
-//!   packetiser, UDP, with packet loss injected on demand.
+//!   packetiser, UDP, with packet loss injected on demand;
+//! - `decode::StreamDecoder`: recorded access units through the source's own decoding pipeline,
+//!   giving the frames the camera decoded live (replay).
 
 pub mod h264;
 pub mod meta;
 pub mod rtp;
 pub mod stream;
 
+#[cfg(feature = "gstreamer")]
+pub mod decode;
 #[cfg(feature = "gstreamer")]
 pub mod gst;
 #[cfg(feature = "gstreamer")]

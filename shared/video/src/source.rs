@@ -59,9 +59,10 @@ pub struct SourceConfig {
     /// Units in the decoder not yet out beyond which the source stops feeding it until the next
     /// keyframe (a decoder that cannot keep up must not queue without bound).
     pub max_backlog: u64,
-    /// Every access unit as received (its H.264 bytes, verdict and metadata), for a recorder: sent
-    /// without blocking, so a full channel loses units (counted), never the stream.
-    pub access_units: Option<SyncSender<AccessUnit>>,
+    /// Every access unit given to the decoder, in that order (its H.264 bytes, verdict and
+    /// metadata), for a recorder: sent without blocking, so a full channel loses units (counted),
+    /// never the stream.
+    pub access_units: Option<SyncSender<DecodedUnit>>,
 }
 
 impl SourceConfig {
@@ -77,6 +78,20 @@ impl SourceConfig {
             access_units: None,
         }
     }
+}
+
+/// An access unit as the decoder got it, for a recorder: fed in the same order to the same
+/// decoder ([`crate::decode`]), the units give the same pictures.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DecodedUnit {
+    /// As received; a keyframe without its own SPS or PPS carries the last ones the stream sent
+    /// ([`crate::h264::ParameterSets`]).
+    pub unit: AccessUnit,
+    /// The time of the frame it decodes to: `FrameMeta::time_ns` of that frame (the twin's time
+    /// from its metadata, else the RTP clock's).
+    pub time_ns: u64,
+    /// The decoder was started afresh before this unit (after an error): what it held is gone.
+    pub decoder_restarted: bool,
 }
 
 /// What the source has seen and done since it opened.
@@ -183,8 +198,8 @@ pub struct RtpSource {
     device_counts: Cell<bool>,
 }
 
-/// The decoding pipeline for frames of `width x height`.
-fn decoder_pipeline(width: u32, height: u32) -> String {
+/// The decoding pipeline for frames of `width x height` (also a record's, `crate::decode`).
+pub(crate) fn decoder_pipeline(width: u32, height: u32) -> String {
     // Slice threads only: frame threads hold pictures back, and one decoded frame per unit, at
     // once, is the point. videoscale after videoconvert scales one grey plane, not three.
     format!(
@@ -556,8 +571,8 @@ impl Decoder {
     }
 
     /// Feeds one access unit, under the timestamp `key`.
-    fn push(&self, bytes: &[u8], key: u64) -> Result<(), gst::FlowError> {
-        let mut buffer = gst::Buffer::from_slice(bytes.to_vec());
+    fn push(&self, bytes: Vec<u8>, key: u64) -> Result<(), gst::FlowError> {
+        let mut buffer = gst::Buffer::from_slice(bytes);
         {
             let b = buffer.get_mut().expect("a new buffer");
             b.set_pts(gst::ClockTime::from_nseconds(key));
@@ -601,20 +616,7 @@ fn on_picture(shared: &Shared, sample: &gst::Sample, width: usize, height: usize
         None => std::mem::take(&mut state.spare),
     };
     drop(state);
-    let copied = gst_video::VideoFrameRef::from_buffer_ref_readable(buffer, &info)
-        .ok()
-        .and_then(|frame| {
-            let stride = *frame.plane_stride().first()? as usize;
-            let data = frame.plane_data(0).ok()?;
-            if frame.width() as usize != width || frame.height() as usize != height {
-                return None;
-            }
-            image.clear();
-            for row in 0..height {
-                image.extend_from_slice(data.get(row * stride..row * stride + width)?);
-            }
-            Some(())
-        });
+    let copied = grey_plane(buffer, &info, width, height, &mut image);
     let mut state = shared.lock();
     // Counted once the picture is in the slot: whoever waits on the count finds it there.
     state.stats.decoded += 1;
@@ -632,6 +634,28 @@ fn on_picture(shared: &Shared, sample: &gst::Sample, width: usize, height: usize
     });
     drop(state);
     shared.wake();
+}
+
+/// Copies the grey plane of a decoded `width x height` picture into `image` (rows without their
+/// padding); `None` when it is not readable or not of that size.
+pub(crate) fn grey_plane(
+    buffer: &gst::BufferRef,
+    info: &gst_video::VideoInfo,
+    width: usize,
+    height: usize,
+    image: &mut Vec<u8>,
+) -> Option<()> {
+    let frame = gst_video::VideoFrameRef::from_buffer_ref_readable(buffer, info).ok()?;
+    let stride = *frame.plane_stride().first()? as usize;
+    let data = frame.plane_data(0).ok()?;
+    if frame.width() as usize != width || frame.height() as usize != height {
+        return None;
+    }
+    image.clear();
+    for row in 0..height {
+        image.extend_from_slice(data.get(row * stride..row * stride + width)?);
+    }
+    Some(())
 }
 
 /// The receive thread: the socket through the stream's judgement into the decoder.
@@ -653,6 +677,7 @@ fn receive(
     let mut skipping = false;
     let mut last_key: Option<(u64, u64)> = None;
     let mut notes = Notes::default();
+    let mut fed = Fed::default();
     let (w, h) = (config.width, config.height);
     loop {
         let mut fds = [
@@ -708,6 +733,7 @@ fn receive(
                     state.in_decoder.clear();
                     drop(state);
                     receiver.damage();
+                    fed.restarted = true;
                     tracing::warn!("the decoder was started again after: {reason}");
                 }
                 Err(e) => tracing::error!("the decoder cannot be started again: {e}"),
@@ -763,7 +789,16 @@ fn receive(
                 }
                 Event::AccessUnit(unit) => {
                     let key = timestamp_key(&mut clock, &mut last_key, &unit);
-                    feed(&shared, &decoder, &config, &mut skipping, unit, key, (w, h));
+                    feed(
+                        &shared,
+                        &decoder,
+                        &config,
+                        &mut skipping,
+                        &mut fed,
+                        unit,
+                        key,
+                        (w, h),
+                    );
                 }
             }
         }
@@ -788,13 +823,23 @@ fn timestamp_key(
     (time, key)
 }
 
+/// What the receive thread keeps about the units it gives the decoder.
+#[derive(Default)]
+struct Fed {
+    parameter_sets: crate::h264::ParameterSets,
+    /// The decoder was started again since the last unit fed.
+    restarted: bool,
+}
+
 /// One access unit to the decoder (or not), remembered under its key.
+#[allow(clippy::too_many_arguments)]
 fn feed(
     shared: &Shared,
     decoder: &Decoder,
     config: &SourceConfig,
     skipping: &mut bool,
-    unit: AccessUnit,
+    fed: &mut Fed,
+    mut unit: AccessUnit,
     (time_ns, key): (u64, u64),
     (w, h): (u32, u32),
 ) {
@@ -834,7 +879,8 @@ fn feed(
         state.stats.skipped += 1;
     }
     if !skip {
-        if let Ok(meta) = meta {
+        if let Ok(meta) = &meta {
+            let meta = *meta;
             state.in_decoder.insert(
                 key,
                 Unit {
@@ -852,13 +898,28 @@ fn feed(
     if refused.is_some() {
         shared.wake();
     }
-    if !skip && let Err(e) = decoder.push(&unit.bytes, key) {
-        tracing::warn!("the decoder refused an access unit: {e:?}");
+    if skip {
+        return;
     }
-    if let Some(tap) = &config.access_units
-        && tap.try_send(unit).is_err()
-    {
-        shared.lock().stats.tap_lost += 1;
+    fed.parameter_sets.complete(&mut unit.bytes);
+    let bytes = unit.bytes.clone();
+    // The recorder's copy first: the unit is published before the frame it decodes to.
+    if let Some(tap) = &config.access_units {
+        let frame_time = match &meta {
+            Ok(Some(m)) => m.time_ns,
+            _ => time_ns,
+        };
+        let tapped = DecodedUnit {
+            unit,
+            time_ns: frame_time,
+            decoder_restarted: std::mem::take(&mut fed.restarted),
+        };
+        if tap.try_send(tapped).is_err() {
+            shared.lock().stats.tap_lost += 1;
+        }
+    }
+    if let Err(e) = decoder.push(bytes, key) {
+        tracing::warn!("the decoder refused an access unit: {e:?}");
     }
 }
 

@@ -15,13 +15,13 @@
 //! headers come with their images, the status is the recorder's own).
 
 use crate::FlightRecorder;
-use crate::image::Image;
+use crate::image::{Image, Video};
 use config::Dof;
 use messages::topics;
 use messages::{
     AutopilotAttitude, AutopilotDepth, AutopilotState, CableObservationMsg, CameraFrameHeader,
     DofCommand, LearningStats, PortError, RecorderStatus, ServoOutputs, Stamp, StatusText,
-    SupervisorEvent, ThrusterSetpoints, VehicleStateMsg,
+    SupervisorEvent, ThrusterSetpoints, VehicleStateMsg, VideoUnit,
 };
 use serde_json::Value;
 
@@ -104,6 +104,10 @@ macro_rules! key {
     (by_clock, $m:expr) => {
         Key::Seq(($m.clock_ns as u64) ^ (1 << 63))
     };
+    // A video unit: its number within the camera's epoch (kept by `Keeper::video`).
+    (by_unit, $m:expr) => {
+        Key::Seq((($m.epoch as u64) << 32) | ($m.number & 0xFFFF_FFFF))
+    };
 }
 
 macro_rules! per_step {
@@ -117,6 +121,9 @@ macro_rules! per_step {
         false
     };
     (by_clock) => {
+        false
+    };
+    (by_unit) => {
         false
     };
 }
@@ -150,6 +157,9 @@ macro_rules! flight_record {
             /// Perception's estimate drawn over the image (`foxglove.ImageAnnotations`), for the
             /// frames whose image is recorded.
             Annotation,
+            /// The camera's compressed stream as it arrived (`foxglove.CompressedVideo`, H.264),
+            /// an access unit a message.
+            Video,
         }
 
         /// A recorded message, as the mesh sent it.
@@ -159,11 +169,12 @@ macro_rules! flight_record {
             Image(Image),
             /// Perception's overlay (not decoded: it is drawn from the observation).
             Overlay,
+            Video(Video),
         }
 
         impl Channel {
-            pub const ALL: [Channel; [$($(stringify!($channel),)+)+ "Image", "Annotation"].len()] =
-                [$($(Channel::$channel,)+)+ Channel::Image, Channel::Annotation];
+            pub const ALL: [Channel; [$($(stringify!($channel),)+)+ "Image", "Annotation", "Video"].len()] =
+                [$($(Channel::$channel,)+)+ Channel::Image, Channel::Annotation, Channel::Video];
 
             /// The channel's topic in the MCAP file and the live view: the contract's topic name
             /// (`messages::topics`) with a leading slash; the camera's header and perception's
@@ -173,6 +184,7 @@ macro_rules! flight_record {
                     $($(Channel::$channel => $topic,)+)+
                     Channel::Image => "/camera_frame",
                     Channel::Annotation => "/cable_observation/overlay",
+                    Channel::Video => "/camera_video",
                 }
             }
 
@@ -182,6 +194,7 @@ macro_rules! flight_record {
                     $($(Channel::$channel => $source.name,)+)+
                     Channel::Image => topics::CAMERA_FRAME.name,
                     Channel::Annotation => topics::CABLE_OBSERVATION.name,
+                    Channel::Video => topics::CAMERA_VIDEO.name,
                 }
             }
 
@@ -191,6 +204,7 @@ macro_rules! flight_record {
                     $($(Channel::$channel)|+ => messages::json::schema_name::<$payload>(),)+
                     Channel::Image => "foxglove.RawImage".into(),
                     Channel::Annotation => "foxglove.ImageAnnotations".into(),
+                    Channel::Video => "foxglove.CompressedVideo".into(),
                 }
             }
 
@@ -200,7 +214,7 @@ macro_rules! flight_record {
                     $($(Channel::$channel)|+ => Some(messages::json::schema::<$payload>(
                         &self.schema_name(),
                     )),)+
-                    Channel::Image | Channel::Annotation => None,
+                    Channel::Image | Channel::Annotation | Channel::Video => None,
                 }
             }
 
@@ -209,7 +223,7 @@ macro_rules! flight_record {
             pub fn per_step(self) -> bool {
                 match self {
                     $($(Channel::$channel)|+ => per_step!($keep),)+
-                    Channel::Image | Channel::Annotation => false,
+                    Channel::Image | Channel::Annotation | Channel::Video => false,
                 }
             }
         }
@@ -221,15 +235,16 @@ macro_rules! flight_record {
                     $($(Recorded::$kind($($key,)? _) => Channel::$channel,)+)+
                     Recorded::Image(_) => Channel::Image,
                     Recorded::Overlay => Channel::Annotation,
+                    Recorded::Video(_) => Channel::Video,
                 }
             }
 
             /// How the message is kept once; `None` for an image or an overlay (written with their
-            /// frame, `FlightRecorder::frame`).
+            /// frame, `FlightRecorder::frame`) or a video unit (`FlightRecorder::video`).
             pub fn key(&self) -> Option<Key> {
                 match self {
                     $(Recorded::$kind(.., m) => Some(key!($keep, m)),)+
-                    Recorded::Image(_) | Recorded::Overlay => None,
+                    Recorded::Image(_) | Recorded::Overlay | Recorded::Video(_) => None,
                 }
             }
 
@@ -237,7 +252,7 @@ macro_rules! flight_record {
             pub(crate) fn write_json(&self, out: &mut Vec<u8>) -> bool {
                 match self {
                     $(Recorded::$kind(.., m) => serde_json::to_writer(out, m).is_ok(),)+
-                    Recorded::Image(_) | Recorded::Overlay => false,
+                    Recorded::Image(_) | Recorded::Overlay | Recorded::Video(_) => false,
                 }
             }
 
@@ -248,7 +263,7 @@ macro_rules! flight_record {
                     $($(Channel::$channel => Recorded::$kind(
                         $($key,)? serde_json::from_slice(data).map_err(e)?
                     ),)+)+
-                    Channel::Image | Channel::Annotation => {
+                    Channel::Image | Channel::Annotation | Channel::Video => {
                         return Err(format!("{} is not a JSON channel", channel.topic()));
                     }
                 })
@@ -258,7 +273,7 @@ macro_rules! flight_record {
         /// The recorder's subscriptions of the channels it records as they are (`tap` in the
         /// table), in the table's order.
         pub fn taps(rt: &runtime::Runtime) -> Result<Vec<Box<dyn Drain>>, PortError> {
-            let taps: [Option<Box<dyn Drain>>; Channel::ALL.len() - 2] = [
+            let taps: [Option<Box<dyn Drain>>; Channel::ALL.len() - 3] = [
                 $($(tap!($sub, rt, $source, |m| Recorded::$kind($($key,)? m)),)+)+
             ];
             Ok(taps.into_iter().flatten().collect())
@@ -274,6 +289,11 @@ flight_record! {
     /// Each camera frame's header: its step and the true line where known.
     FrameHeader(CameraFrameHeader), each_step {
         FrameHeader = "/camera_frame/header" <- topics::CAMERA_FRAME, own;
+    }
+    /// Each video unit's header: its number in the decoder's order, its frame's time, keyframe,
+    /// damage (written with its unit, `FlightRecorder::video`).
+    VideoHeader(VideoUnit), by_unit {
+        VideoHeader = "/camera_video/header" <- topics::CAMERA_VIDEO, own;
     }
     /// Perception's estimate.
     Observation(CableObservationMsg), each_step {
@@ -322,7 +342,7 @@ impl Channel {
 
     pub fn encoding(self) -> Encoding {
         match self {
-            Channel::Image | Channel::Annotation => Encoding::Protobuf,
+            Channel::Image | Channel::Annotation | Channel::Video => Encoding::Protobuf,
             _ => Encoding::Json,
         }
     }

@@ -4,10 +4,10 @@
 //! stamp time, which is how a viewer pairs an overlay with its image.
 
 use foxglove::messages::{
-    Color, ImageAnnotations, Point2, PointsAnnotation, RawImage, TextAnnotation, Timestamp,
-    points_annotation,
+    Color, CompressedVideo, ImageAnnotations, Point2, PointsAnnotation, RawImage, TextAnnotation,
+    Timestamp, points_annotation,
 };
-use messages::{CableObservationMsg, CameraFrameHeader};
+use messages::{CableObservationMsg, CameraFrameHeader, VideoUnit};
 
 /// The frame a recorded image belongs to, in the camera's optical frame.
 pub const FRAME_ID: &str = "camera";
@@ -93,6 +93,38 @@ impl TryFrom<RawImage> for Image {
             height: raw.height,
             data,
         })
+    }
+}
+
+/// An access unit of the camera's H.264 stream as `foxglove.CompressedVideo`: Annex B, one
+/// access unit a message (a keyframe with its SPS and PPS: the camera's source adds the last
+/// ones sent where a keyframe lacks them), at its frame's time.
+pub fn compressed_video(unit: &VideoUnit, bytes: &[u8]) -> CompressedVideo {
+    CompressedVideo {
+        timestamp: Some(timestamp(unit.time_ns)),
+        frame_id: FRAME_ID.into(),
+        data: bytes.to_vec().into(),
+        format: "h264".into(),
+    }
+}
+
+/// A video unit read back from a record.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Video {
+    pub time_ns: u64,
+    /// `h264`.
+    pub format: String,
+    /// The access unit, Annex B.
+    pub data: Vec<u8>,
+}
+
+impl From<CompressedVideo> for Video {
+    fn from(v: CompressedVideo) -> Video {
+        Video {
+            time_ns: v.timestamp.as_ref().map_or(0, Timestamp::total_nanos),
+            format: v.format,
+            data: v.data.to_vec(),
+        }
     }
 }
 
@@ -214,6 +246,30 @@ mod tests {
             ..raw
         };
         assert!(matches!(Image::try_from(rgb), Err(ImageError::Encoding(_))));
+    }
+
+    #[test]
+    fn a_video_unit_goes_into_compressed_video_and_back() {
+        let unit = VideoUnit {
+            number: 3,
+            time_ns: 2_400_000_007,
+            flags: VideoUnit::KEYFRAME,
+            ..Default::default()
+        };
+        let au = [
+            0u8, 0, 0, 1, 0x67, 1, 0, 0, 0, 1, 0x68, 2, 0, 0, 0, 1, 0x65, 3,
+        ];
+        let v = compressed_video(&unit, &au);
+        assert_eq!((v.format.as_str(), v.frame_id.as_str()), ("h264", FRAME_ID));
+        let back = Video::from(v);
+        assert_eq!(
+            back,
+            Video {
+                time_ns: 2_400_000_007,
+                format: "h264".into(),
+                data: au.to_vec()
+            }
+        );
     }
 
     #[test]

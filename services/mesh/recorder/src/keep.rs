@@ -10,6 +10,11 @@
 //!   happened in the dive's timeline; its wall clock is in the message.
 //! - **Frames.** Every frame's header is written; its image only for steps `step % frame_every == 0`
 //!   (every frame by default), and perception's overlay for exactly the frames whose image was written.
+//!   Once the camera's compressed stream is recorded (its units, [`Keeper::video`]), the images
+//!   are decimated by `video_frame_every` instead: the stream holds every frame, the images a few
+//!   to look at and to check the stream's decoding against.
+//! - **Video units.** Each unit once, by its number within the camera's epoch (a repeat: the same
+//!   number seen again; a restarted camera starts a new epoch).
 //! - **Holes.** A step a channel of the loop missed while another channel recorded it, and the
 //!   channel has recorded a later step since (so a step still in flight at the stop is not one): the
 //!   recorder's buffer overflowed, or the step was never published on that topic (a command that
@@ -59,6 +64,10 @@ pub struct Counts {
 #[derive(Debug)]
 pub struct Keeper {
     frame_every: u32,
+    /// The images' decimation once a video unit is recorded.
+    video_frame_every: u32,
+    /// The last video unit written: its camera's epoch and number.
+    last_unit: Option<(u32, u64)>,
     last_seq: BTreeMap<Channel, u64>,
     /// Recent steps: which per-step channels recorded each.
     seen: BTreeMap<u64, u64>,
@@ -82,6 +91,8 @@ impl Keeper {
     pub fn new(frame_every: u32) -> Self {
         Keeper {
             frame_every: frame_every.max(1),
+            video_frame_every: frame_every.max(1),
+            last_unit: None,
             last_seq: BTreeMap::new(),
             seen: BTreeMap::new(),
             imaged: VecDeque::new(),
@@ -90,8 +101,34 @@ impl Keeper {
         }
     }
 
+    /// Keeps the image of every `n`-th step once the compressed stream is recorded.
+    pub fn with_video_frame_every(mut self, n: u32) -> Self {
+        self.video_frame_every = n.max(1);
+        self
+    }
+
+    /// The images' decimation now.
     pub fn frame_every(&self) -> u32 {
-        self.frame_every
+        if self.last_unit.is_some() {
+            self.video_frame_every
+        } else {
+            self.frame_every
+        }
+    }
+
+    /// Whether to write the video unit `number` of the camera's `epoch`: not when it was
+    /// written before (the recorder's buffer gave it twice).
+    pub fn video(&mut self, epoch: u32, number: u64) -> bool {
+        if let Some((e, n)) = self.last_unit
+            && e == epoch
+            && number <= n
+        {
+            self.count(Channel::Video).repeats += 1;
+            return false;
+        }
+        self.last_unit = Some((epoch, number));
+        self.count(Channel::Video).written += 1;
+        true
     }
 
     fn count(&mut self, c: Channel) -> &mut Counts {
@@ -128,7 +165,7 @@ impl Keeper {
         if !has_image {
             return false;
         }
-        if !stamp.step.is_multiple_of(self.frame_every) {
+        if !stamp.step.is_multiple_of(self.frame_every()) {
             self.count(Channel::Image).decimated += 1;
             return false;
         }
@@ -284,6 +321,30 @@ mod tests {
         let c = k.counts()[&Channel::Image];
         assert_eq!((c.written, c.decimated), (3, 9));
         assert_eq!(k.counts()[&Channel::Annotation].written, 2);
+    }
+
+    /// With the compressed stream recorded, the images thin out to `video_frame_every`; a unit
+    /// is kept once per camera epoch and number.
+    #[test]
+    fn with_video_the_images_are_decimated_further() {
+        let mut k = Keeper::new(1).with_video_frame_every(4);
+        let image = |k: &mut Keeper, step: u32| {
+            let s = stamp(100 + step as u64, step);
+            k.stamped(Channel::FrameHeader, &s);
+            k.image(&s, true)
+        };
+        assert!(
+            (0..3).all(|step| image(&mut k, step)),
+            "every image before the stream"
+        );
+        assert!(k.video(9, 1) && k.video(9, 2));
+        assert!(!k.video(9, 2), "the same unit again");
+        assert!(k.video(5, 1), "a restarted camera's first unit");
+        let kept: Vec<u32> = (3..12).filter(|&step| image(&mut k, step)).collect();
+        assert_eq!(kept, vec![4, 8]);
+        assert_eq!(k.frame_every(), 4);
+        let v = k.counts()[&Channel::Video];
+        assert_eq!((v.written, v.repeats), (3, 1));
     }
 
     #[test]

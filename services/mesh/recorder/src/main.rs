@@ -30,6 +30,10 @@ struct Args {
     /// everything else are kept at every step.
     #[arg(long, default_value_t = 1, value_name = "N")]
     frame_every: u32,
+    /// Once the camera's compressed stream is recorded (`/camera_video`: it holds every frame),
+    /// keep the image of every N-th step only.
+    #[arg(long, default_value_t = 25, value_name = "N")]
+    video_frame_every: u32,
     /// Start a new part when the current one reaches this size.
     #[arg(long, default_value_t = 1024, value_name = "MB")]
     rotate_mb: u64,
@@ -59,6 +63,8 @@ fn main() -> ExitCode {
 
 /// Every topic of the endpoint, read by the recorder.
 struct Taps {
+    /// The camera's compressed stream (an RTP/H.264 source's).
+    video: messages::VideoTap,
     frames: messages::FrameTap,
     /// Every other topic the recorder records as it is (`recorder::channels`).
     plain: Vec<Box<dyn Drain>>,
@@ -67,14 +73,21 @@ struct Taps {
 impl Taps {
     fn open(rt: &Runtime) -> anyhow::Result<Taps> {
         Ok(Taps {
+            video: rt.video_tap()?,
             frames: rt.frame_tap()?,
             plain: recorder::taps(rt)?,
         })
     }
 
-    /// Everything unread, into the record: the frames first (a step's estimate is drawn over its
-    /// frame's image once that is written), then the other topics in the table's order.
+    /// Everything unread, into the record: the video units, the frames (a step's estimate is drawn
+    /// over its frame's image once that is written), then the other topics in the table's order.
     fn drain(&self, rec: &mut FlightRecorder) -> anyhow::Result<()> {
+        // The units before the frames they decode to: the images' decimation follows the stream.
+        while self
+            .video
+            .receive_with(|unit, bytes| rec.video(unit, bytes))?
+            .is_some()
+        {}
         while self
             .frames
             .receive_with(|header, image| rec.frame(header, image))?
@@ -118,6 +131,7 @@ fn record(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     ]);
     let mut opts = Options::new(&args.out);
     opts.frame_every = args.frame_every;
+    opts.video_frame_every = args.video_frame_every;
     opts.rotate_bytes = args.rotate_mb.saturating_mul(1 << 20);
     opts.chunk_bytes = args.chunk_kb.saturating_mul(1 << 10);
     let mut rec = match FlightRecorder::create(opts, metadata) {
@@ -149,6 +163,7 @@ fn record(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     tracing::info!(
         out = %args.out.display(),
         frame_every = args.frame_every,
+        video_frame_every = args.video_frame_every,
         rotate_mb = args.rotate_mb,
         "recording every topic of the endpoint"
     );

@@ -79,6 +79,11 @@ fn decode(channel: Channel, data: &[u8]) -> Result<Recorded, String> {
             ))
         }
         Channel::Annotation => Ok(Recorded::Overlay),
+        Channel::Video => {
+            let v = foxglove::messages::CompressedVideo::decode(data)
+                .map_err(|e| format!("protobuf: {e}"))?;
+            Ok(Recorded::Video(v.into()))
+        }
         _ => Recorded::from_json(channel, data),
     }
 }

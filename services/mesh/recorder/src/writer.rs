@@ -10,12 +10,12 @@ use crate::channels::{Channel, Key, Recorded};
 use crate::keep::{Keep, Keeper, Overlay};
 use crate::seal::{SealedFile, Shared};
 use crate::{image, part_path};
-use foxglove::messages::{ImageAnnotations, RawImage};
+use foxglove::messages::{CompressedVideo, ImageAnnotations, RawImage};
 use foxglove::{
     Context, FoxgloveError, McapCompression, McapWriteOptions, McapWriterHandle, PartialMetadata,
     RawChannel, Schema, WebSocketServerHandle,
 };
-use messages::{CableObservationMsg, CameraFrameHeader, RecorderStatus};
+use messages::{CableObservationMsg, CameraFrameHeader, RecorderStatus, VideoUnit};
 use runtime::clock::unix_ns;
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -35,6 +35,9 @@ pub struct Options {
     pub zstd_level: u32,
     /// Keep the image of every `frame_every`-th step (see `crate::keep`).
     pub frame_every: u32,
+    /// Keep the image of every `video_frame_every`-th step once the camera's compressed stream
+    /// is recorded (it holds every frame).
+    pub video_frame_every: u32,
 }
 
 impl Options {
@@ -45,6 +48,7 @@ impl Options {
             chunk_bytes: 1 << 20,
             zstd_level: 1,
             frame_every: 1,
+            video_frame_every: 25,
         }
     }
 }
@@ -143,6 +147,7 @@ pub struct FlightRecorder {
     json: BTreeMap<Channel, Arc<RawChannel>>,
     image: foxglove::Channel<RawImage>,
     overlay: foxglove::Channel<ImageAnnotations>,
+    video: foxglove::Channel<CompressedVideo>,
     file: Option<Part>,
     part: u32,
     parts: Vec<PathBuf>,
@@ -169,10 +174,14 @@ impl FlightRecorder {
         opts: Options,
         metadata: BTreeMap<String, String>,
     ) -> Result<FlightRecorder, RecordError> {
-        if opts.frame_every == 0 || opts.rotate_bytes == 0 || opts.chunk_bytes == 0 {
+        if opts.frame_every == 0
+            || opts.video_frame_every == 0
+            || opts.rotate_bytes == 0
+            || opts.chunk_bytes == 0
+        {
             return Err(RecordError::Option(format!(
-                "frame_every ({}), rotate_bytes ({}) and chunk_bytes ({}) must be at least 1",
-                opts.frame_every, opts.rotate_bytes, opts.chunk_bytes
+                "frame_every ({}), video_frame_every ({}), rotate_bytes ({}) and chunk_bytes ({}) must be at least 1",
+                opts.frame_every, opts.video_frame_every, opts.rotate_bytes, opts.chunk_bytes
             )));
         }
         let ctx = Context::new();
@@ -202,6 +211,9 @@ impl FlightRecorder {
         let overlay = ctx
             .channel_builder(Channel::Annotation.topic())
             .build::<ImageAnnotations>();
+        let video = ctx
+            .channel_builder(Channel::Video.topic())
+            .build::<CompressedVideo>();
         let first = (0u32..)
             .find(|&k| !part_path(&opts.path, k).exists())
             .unwrap_or(0);
@@ -213,12 +225,13 @@ impl FlightRecorder {
             );
         }
         let mut rec = FlightRecorder {
-            keeper: Keeper::new(opts.frame_every),
+            keeper: Keeper::new(opts.frame_every).with_video_frame_every(opts.video_frame_every),
             opts,
             ctx,
             json,
             image,
             overlay,
+            video,
             file: None,
             part: first,
             parts: Vec::new(),
@@ -270,6 +283,10 @@ impl FlightRecorder {
         meta.insert("part".into(), self.part.to_string());
         meta.insert("part_started_unix_ns".into(), unix_ns().to_string());
         meta.insert("frame_every".into(), self.opts.frame_every.to_string());
+        meta.insert(
+            "video_frame_every".into(),
+            self.opts.video_frame_every.to_string(),
+        );
         handle.write_metadata("cabletrack", meta).map_err(write)?;
         // The first commit creates the file, whole.
         if let Err(e) = handle.flush() {
@@ -370,6 +387,24 @@ impl FlightRecorder {
         for o in std::mem::take(&mut self.waiting) {
             self.draw(&o);
         }
+    }
+
+    /// A unit of the camera's compressed stream: its header as JSON and the unit as
+    /// `foxglove.CompressedVideo`, both at its frame's time, once.
+    pub fn video(&mut self, unit: &VideoUnit, bytes: &[u8]) {
+        if !self.keeper.video(unit.epoch, unit.number) {
+            return;
+        }
+        self.buf.clear();
+        if Recorded::VideoHeader(*unit).write_json(&mut self.buf)
+            && let Some(ch) = self.json.get(&Channel::VideoHeader)
+        {
+            ch.log_with_meta(&self.buf, PartialMetadata::with_log_time(unit.time_ns));
+            self.messages += 1;
+        }
+        self.video
+            .log_with_time(&image::compressed_video(unit, bytes), unit.time_ns);
+        self.messages += 1;
     }
 
     /// Perception's overlay of `o`, drawn once its frame's image is written.

@@ -34,6 +34,13 @@ def protobuf_summary(schema_name, message):
             "points": [len(p.points) for p in message.points],
             "texts": [t.text for t in message.texts],
         }
+    if schema_name == "foxglove.CompressedVideo":
+        return {
+            "timestamp": [message.timestamp.seconds, message.timestamp.nanos],
+            "frame_id": message.frame_id,
+            "format": message.format,
+            "data_hex": message.data.hex(),
+        }
     raise SystemExit(f"unexpected protobuf schema {schema_name}")
 
 

@@ -21,7 +21,7 @@ pub enum ReplayError {
     #[error(transparent)]
     Read(#[from] ReadError),
     #[error(
-        "{}: the frame of step seq {seq} (episode {episode}, step {step}) has no image, though the record has images: it was recorded with --frame-every above 1, and a replay needs every frame",
+        "{}: the frame of step seq {seq} (episode {episode}, step {step}) has no image, though the record has images: it was recorded with --frame-every above 1, and a replay needs every frame (a record with the camera's compressed stream, /camera_video, replays its frames from the stream with a replay built with `--features video`)",
         path.display()
     )]
     Decimated {
@@ -47,6 +47,18 @@ pub enum ReplayError {
         got_width: u32,
         got_height: u32,
     },
+    #[cfg(feature = "video")]
+    #[error(transparent)]
+    Video(#[from] crate::video::VideoError),
+    #[error(
+        "{}: the frame of step seq {seq} at {time_ns} ns decoded from the record's stream differs from its recorded image",
+        path.display()
+    )]
+    VideoDiffers {
+        path: PathBuf,
+        seq: u64,
+        time_ns: u64,
+    },
     #[error("{}: frame seq {seq} does not follow seq {previous}", path.display())]
     Order {
         path: PathBuf,
@@ -67,6 +79,12 @@ pub struct Frames {
     frames: u64,
     /// The mesh's outputs as recorded, collected while reading.
     pub recorded: Outputs,
+    /// The record's compressed stream, decoded (opened at the first frame, of its size).
+    #[cfg(feature = "video")]
+    video: Option<crate::video::VideoFrames>,
+    /// Frames taken from the stream, and of them those checked against a recorded image.
+    pub from_stream: u64,
+    pub checked: u64,
 }
 
 impl Frames {
@@ -79,6 +97,10 @@ impl Frames {
             last_seq: None,
             frames: 0,
             recorded: Outputs::default(),
+            #[cfg(feature = "video")]
+            video: None,
+            from_stream: 0,
+            checked: 0,
         })
     }
 
@@ -101,6 +123,8 @@ impl Frames {
             });
         }
         self.last_seq = Some(seq);
+        #[cfg(feature = "video")]
+        let image = self.image_of_stream(&header, image)?;
         let has = *self.images.get_or_insert(image.is_some());
         if has && image.is_none() {
             return Err(ReplayError::Decimated {
@@ -128,6 +152,47 @@ impl Frames {
         };
         self.frames += 1;
         Ok(Frame { header, image })
+    }
+
+    /// The frame's image from the record's stream where it has one (checked against the image
+    /// recorded, if any), else the image recorded.
+    #[cfg(feature = "video")]
+    fn image_of_stream(
+        &mut self,
+        header: &CameraFrameHeader,
+        image: Option<recorder::image::Image>,
+    ) -> Result<Option<recorder::image::Image>, ReplayError> {
+        if header.width == 0 || header.height == 0 {
+            return Ok(image);
+        }
+        let video = match &mut self.video {
+            Some(v) => v,
+            None => self.video.insert(crate::video::VideoFrames::open(
+                &self.path,
+                header.width,
+                header.height,
+            )?),
+        };
+        let Some(decoded) = video.frame_at(header.stamp.time_ns)? else {
+            return Ok(image);
+        };
+        if let Some(recorded) = &image {
+            if recorded.data != decoded.image {
+                return Err(ReplayError::VideoDiffers {
+                    path: self.path.clone(),
+                    seq: header.stamp.seq,
+                    time_ns: header.stamp.time_ns,
+                });
+            }
+            self.checked += 1;
+        }
+        self.from_stream += 1;
+        Ok(Some(recorder::image::Image {
+            time_ns: header.stamp.time_ns,
+            width: header.width,
+            height: header.height,
+            data: decoded.image,
+        }))
     }
 
     /// The next frame, or `None` at the end of the record.

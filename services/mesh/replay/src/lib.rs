@@ -13,11 +13,15 @@
 //!
 //! - [`frames`]: the record's frames pulled one at a time, the recorded outputs collected on the way;
 //! - [`plant`]: the record as a `runtime::lockstep::Plant` (the lockstep's re-sends and deadlines);
-//! - [`compare`]: outputs by step, and the report.
+//! - [`compare`]: outputs by step, and the report;
+//! - `video` (the `video` feature): the record's compressed stream decoded as the camera decoded it,
+//!   the frames of a record whose images were kept only now and then.
 
 pub mod compare;
 pub mod frames;
 pub mod plant;
+#[cfg(feature = "video")]
+pub mod video;
 
 pub use compare::{Difference, Outputs, Report, TopicReport};
 pub use frames::{Frame, Frames, ReplayError};
