@@ -244,8 +244,11 @@ fn the_two_step_job_runs_and_the_mesh_agrees_with_the_in_process_step_two() {
 
     // The limit is a limit: not below the simulation policy nor step two's on the evaluation set by
     // more than twice the evaluation's noise (the spread of J_after - J_sim over the held-out sets),
-    // and the summary says so. (A policy that lost the cable in more trials than the limit failed,
-    // whatever its return: a trial cut short costs less than a whole one.)
+    // or, where this short run's small search (one generation of four, and its further rounds from a
+    // policy that beat it) did not get there, the summary and the report say that the limit is
+    // beaten, by what and by how much: never a limit below a policy shown as a limit. (A policy that
+    // lost the cable in more trials than the limit failed, whatever its return: a trial cut short
+    // costs less than a whole one.)
     let lost = |name: &str| {
         read(&out.join(name).join("run.json"))
             .lost
@@ -255,11 +258,19 @@ fn the_two_step_job_runs_and_the_mesh_agrees_with_the_in_process_step_two() {
     };
     let limit_lost = lost("eval-limit");
     for dof in ["yaw", "sway"] {
-        assert!(
-            summary["limit_check"]["beaten"][dof].is_null(),
-            "{dof}: {:#}",
-            summary["limit_check"]
-        );
+        let beaten = &summary["limit_check"]["beaten"][dof];
+        if !beaten.is_null() {
+            let (margin, noise) = (
+                number(&beaten["margin"], "limit_check.beaten.margin"),
+                number(&beaten["noise"], "limit_check.beaten.noise"),
+            );
+            assert!(margin > 2.0 * noise, "{dof}: {beaten:#}");
+            assert!(
+                md.contains(&format!("- {dof}: **the limit is beaten**")),
+                "{dof}: the report says the limit is beaten ({beaten:#})"
+            );
+            continue;
+        }
         let noise = number(&held_out["noise"][dof], "held_out.noise");
         let j = |part: &str| number(&summary["evaluation"][part][dof], part);
         for (part, run) in [("sim_policy", "eval"), ("after", "eval-after")] {
