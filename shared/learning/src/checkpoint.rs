@@ -567,20 +567,21 @@ mod v1 {
     }
 }
 
-/// The payload of format version 2 (see the module docs), read into the current types.
-mod v2 {
+/// The payload of format versions 2 and 3 (see the module docs): today's agent state but for the
+/// safety layer's, `S`, which each version has its own.
+mod before_pairs {
     use super::{LearnerState, PolicyState};
     use config::{Dof, LearningParams, QuadraticCost};
     use serde::{Deserialize, Serialize};
 
     #[derive(Serialize, Deserialize)]
-    pub struct Checkpoint {
-        pub sway: Option<AgentState>,
-        pub yaw: Option<AgentState>,
+    pub struct Checkpoint<S> {
+        pub sway: Option<AgentState<S>>,
+        pub yaw: Option<AgentState<S>>,
     }
 
     #[derive(Serialize, Deserialize)]
-    pub struct AgentState {
+    pub struct AgentState<S> {
         pub dof: Dof,
         pub params: LearningParams,
         pub cost: QuadraticCost,
@@ -589,8 +590,42 @@ mod v2 {
         pub learner: LearnerState,
         pub steps: u64,
         pub episodes: u64,
-        pub safety: SafetyState,
+        pub safety: S,
     }
+
+    impl<S: Into<crate::safety::SafetyState>> From<AgentState<S>> for super::AgentState {
+        fn from(s: AgentState<S>) -> Self {
+            super::AgentState {
+                dof: s.dof,
+                params: s.params,
+                cost: s.cost,
+                state_max: s.state_max,
+                policy: s.policy,
+                learner: s.learner,
+                steps: s.steps,
+                episodes: s.episodes,
+                safety: s.safety.into(),
+            }
+        }
+    }
+
+    impl<S: Into<crate::safety::SafetyState>> From<Checkpoint<S>> for super::Checkpoint {
+        fn from(c: Checkpoint<S>) -> Self {
+            super::Checkpoint {
+                sway: c.sway.map(Into::into),
+                yaw: c.yaw.map(Into::into),
+            }
+        }
+    }
+}
+
+/// Format version 2: the safety layer's state without the lost trials of an evaluation.
+mod v2 {
+    use serde::{Deserialize, Serialize};
+
+    pub type Checkpoint = super::before_pairs::Checkpoint<SafetyState>;
+    #[cfg(test)]
+    pub type AgentState = super::before_pairs::AgentState<SafetyState>;
 
     #[derive(Clone, Copy, Serialize, Deserialize)]
     pub struct SafetyState {
@@ -603,67 +638,31 @@ mod v2 {
         pub evaluation_trials: u32,
     }
 
-    impl From<AgentState> for super::AgentState {
-        fn from(s: AgentState) -> Self {
-            let f = s.safety;
-            super::v3::AgentState {
-                dof: s.dof,
-                params: s.params,
-                cost: s.cost,
-                state_max: s.state_max,
-                policy: s.policy,
-                learner: s.learner,
-                steps: s.steps,
-                episodes: s.episodes,
-                safety: super::v3::SafetyState {
-                    bounded: f.bounded,
-                    refused: f.refused,
-                    rollbacks: f.rollbacks,
-                    evaluations: f.evaluations,
-                    best: f.best,
-                    evaluation_sum: f.evaluation_sum,
-                    evaluation_trials: f.evaluation_trials,
-                    evaluation_lost: 0,
-                },
+    impl From<SafetyState> for crate::safety::SafetyState {
+        fn from(f: SafetyState) -> Self {
+            super::v3::SafetyState {
+                bounded: f.bounded,
+                refused: f.refused,
+                rollbacks: f.rollbacks,
+                evaluations: f.evaluations,
+                best: f.best,
+                evaluation_sum: f.evaluation_sum,
+                evaluation_trials: f.evaluation_trials,
+                evaluation_lost: 0,
             }
             .into()
         }
     }
-
-    impl From<Checkpoint> for super::Checkpoint {
-        fn from(c: Checkpoint) -> Self {
-            super::Checkpoint {
-                sway: c.sway.map(Into::into),
-                yaw: c.yaw.map(Into::into),
-            }
-        }
-    }
 }
 
-/// The payload of format version 3 (see the module docs), read into the current types.
+/// Format version 3: the safety layer's state with one DOF's best policy (before pairs).
 mod v3 {
-    use super::{LearnerState, PolicyState};
-    use config::{Dof, LearningParams, PerDof, QuadraticCost};
+    use config::PerDof;
     use serde::{Deserialize, Serialize};
 
-    #[derive(Serialize, Deserialize)]
-    pub struct Checkpoint {
-        pub sway: Option<AgentState>,
-        pub yaw: Option<AgentState>,
-    }
-
-    #[derive(Serialize, Deserialize)]
-    pub struct AgentState {
-        pub dof: Dof,
-        pub params: LearningParams,
-        pub cost: QuadraticCost,
-        pub state_max: [f64; 2],
-        pub policy: PolicyState,
-        pub learner: LearnerState,
-        pub steps: u64,
-        pub episodes: u64,
-        pub safety: SafetyState,
-    }
+    pub type Checkpoint = super::before_pairs::Checkpoint<SafetyState>;
+    #[cfg(test)]
+    pub type AgentState = super::before_pairs::AgentState<SafetyState>;
 
     #[derive(Clone, Copy, Serialize, Deserialize)]
     pub struct SafetyState {
@@ -684,46 +683,26 @@ mod v3 {
         pub evaluated: f64,
     }
 
-    impl From<AgentState> for super::AgentState {
-        fn from(s: AgentState) -> Self {
-            let f = s.safety;
-            super::AgentState {
-                dof: s.dof,
-                params: s.params,
-                cost: s.cost,
-                state_max: s.state_max,
-                policy: s.policy,
-                learner: s.learner,
-                steps: s.steps,
-                episodes: s.episodes,
-                safety: crate::safety::SafetyState {
-                    bounded: f.bounded,
-                    refused: f.refused,
-                    rollbacks: f.rollbacks,
-                    evaluations: f.evaluations,
-                    best: f.best.map(|b| crate::safety::BestPolicy {
-                        gain: b.gain,
-                        evaluated: b.evaluated,
-                        cost: PerDof::both(f64::INFINITY),
-                        trial: u32::MAX,
-                    }),
-                    // The pair's cost of an evaluation in progress is unknown: it starts again
-                    // empty, and as it misses trials it is not judged.
-                    evaluation_sum: 0.0,
-                    evaluation_trials: 0,
-                    evaluation_lost: 0,
-                    evaluation_cost: PerDof::default(),
-                    scale: PerDof::default(),
-                },
-            }
-        }
-    }
-
-    impl From<Checkpoint> for super::Checkpoint {
-        fn from(c: Checkpoint) -> Self {
-            super::Checkpoint {
-                sway: c.sway.map(Into::into),
-                yaw: c.yaw.map(Into::into),
+    impl From<SafetyState> for crate::safety::SafetyState {
+        fn from(f: SafetyState) -> Self {
+            crate::safety::SafetyState {
+                bounded: f.bounded,
+                refused: f.refused,
+                rollbacks: f.rollbacks,
+                evaluations: f.evaluations,
+                best: f.best.map(|b| crate::safety::BestPolicy {
+                    gain: b.gain,
+                    evaluated: b.evaluated,
+                    cost: PerDof::both(f64::INFINITY),
+                    trial: u32::MAX,
+                }),
+                // The pair's cost of an evaluation in progress is unknown: it starts again
+                // empty, and as it misses trials it is not judged.
+                evaluation_sum: 0.0,
+                evaluation_trials: 0,
+                evaluation_lost: 0,
+                evaluation_cost: PerDof::default(),
+                scale: PerDof::default(),
             }
         }
     }
