@@ -43,16 +43,11 @@ fn deadline() -> f64 {
 
 /// pymavlink's Python (`scripts/install-pymavlink`; `PYMAVLINK_VENV` says where, as for the script).
 fn python() -> PathBuf {
-    let venv = std::env::var_os("PYMAVLINK_VENV")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| testkit::repo_root().join("target/pymavlink-venv"));
-    let python = venv.join("bin/python");
-    assert!(
-        python.exists(),
-        "pymavlink is not installed ({} is missing): run scripts/install-pymavlink",
-        python.display()
-    );
-    python
+    testkit::venv_python(
+        "PYMAVLINK_VENV",
+        "pymavlink-venv",
+        "scripts/install-pymavlink",
+    )
 }
 
 /// A message the autopilot received.

@@ -21,11 +21,7 @@ const ALT_HOLD: u32 = 2;
 
 /// A UDP port free now (the twin binds it next).
 fn free_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    testkit::free_udp_port()
 }
 
 /// The number after ` key=` in a log line.

@@ -27,11 +27,7 @@ const T: Duration = Duration::from_secs(60);
 const WATCH_REPORTS: u64 = 4;
 
 fn free_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    testkit::free_udp_port()
 }
 
 struct Mesh {

@@ -32,6 +32,29 @@ pub fn config_dir() -> PathBuf {
     repo_root().join("config")
 }
 
+/// The Python of a virtual environment a project script installs (`install`, e.g.
+/// scripts/install-mcap-py): the one `env_var` names, else `target/DIR` of the repository.
+pub fn venv_python(env_var: &str, dir: &str, install: &str) -> PathBuf {
+    let venv = std::env::var_os(env_var)
+        .map(PathBuf::from)
+        .unwrap_or_else(|| repo_root().join("target").join(dir));
+    let python = venv.join("bin/python");
+    assert!(
+        python.exists(),
+        "{} is missing: run {install} (CI does)",
+        python.display()
+    );
+    python
+}
+
+/// A UDP port on loopback free now: the kernel's pick, released for the process under test to bind.
+pub fn free_udp_port() -> u16 {
+    std::net::UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .expect("a free UDP port on loopback")
+        .port()
+}
+
 /// A release binary of the workspace (`scripts/test` builds them all before the tests run), built
 /// from the current source: a binary older than one of its source files (cargo's dependency file
 /// beside it lists them) fails the test with the command that rebuilds it.

@@ -13,25 +13,16 @@ const T: Duration = Duration::from_secs(20);
 const PEER_TIMEOUT: Duration = Duration::from_secs(90);
 
 fn python() -> PathBuf {
-    let venv = std::env::var_os("PYMAVLINK_VENV")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| testkit::repo_root().join("target/pymavlink-venv"));
-    let python = venv.join("bin/python");
-    assert!(
-        python.exists(),
-        "{} is missing: run scripts/install-pymavlink",
-        python.display()
-    );
-    python
+    testkit::venv_python(
+        "PYMAVLINK_VENV",
+        "pymavlink-venv",
+        "scripts/install-pymavlink",
+    )
 }
 
 /// A UDP port free now (the twin binds it next).
 fn free_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    testkit::free_udp_port()
 }
 
 /// The BlueROV2 twin's config with `params` added to its autopilot's parameters, in a directory of

@@ -36,11 +36,7 @@ fn wait_frame(
 
 /// A free UDP port on loopback (taken from the kernel, released for the camera to bind).
 fn free_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    testkit::free_udp_port()
 }
 
 /// Twenty lockstep steps through RTP/H.264 at 1280x720: every step's frame reaches the camera

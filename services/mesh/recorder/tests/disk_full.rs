@@ -54,17 +54,7 @@ fn own_tmpfs(dir: &Path, kib: u64) {
 }
 
 fn python() -> PathBuf {
-    let venv = std::env::var_os("MCAP_VENV").map_or_else(
-        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../target/mcap-venv"),
-        PathBuf::from,
-    );
-    let python = venv.join("bin/python");
-    assert!(
-        python.exists(),
-        "{} is missing: run scripts/install-mcap-py (CI does)",
-        python.display()
-    );
-    python
+    testkit::venv_python("MCAP_VENV", "mcap-venv", "scripts/install-mcap-py")
 }
 
 /// Publishes a step whose frame is noise (zstd cannot shrink it), its estimate and its setpoints.

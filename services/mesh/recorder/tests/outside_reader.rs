@@ -11,17 +11,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 fn python() -> PathBuf {
-    let venv = std::env::var_os("MCAP_VENV").map_or_else(
-        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../target/mcap-venv"),
-        PathBuf::from,
-    );
-    let python = venv.join("bin/python");
-    assert!(
-        python.exists(),
-        "{} is missing: run scripts/install-mcap-py (CI does)",
-        python.display()
-    );
-    python
+    testkit::venv_python("MCAP_VENV", "mcap-venv", "scripts/install-mcap-py")
 }
 
 /// What the Python reader made of the record at `record`.

@@ -34,26 +34,12 @@ const T: Duration = Duration::from_secs(60);
 const STEPS: usize = 25;
 
 fn python() -> PathBuf {
-    let venv = std::env::var_os("MCAP_VENV").map_or_else(
-        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../target/mcap-venv"),
-        PathBuf::from,
-    );
-    let python = venv.join("bin/python");
-    assert!(
-        python.exists(),
-        "{} is missing: run scripts/install-mcap-py (CI does)",
-        python.display()
-    );
-    python
+    testkit::venv_python("MCAP_VENV", "mcap-venv", "scripts/install-mcap-py")
 }
 
 /// A free UDP port on loopback (taken from the kernel, released for the camera to bind).
 fn free_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    testkit::free_udp_port()
 }
 
 fn next_frame(probe: &Probe, frames: &FrameInbox, after: u64) -> (CameraFrameHeader, Vec<u8>) {
