@@ -83,18 +83,19 @@ const QUIET_NOTE: Duration = Duration::from_secs(5);
 fn serve_vehicle(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     let c = &rt.scenario().camera;
     let spec = args.source.clone().unwrap_or(SourceSpec::Twin);
-    let (source, units): (Box<dyn FrameSource>, _) = match &spec {
+    let (source, units, at_exit): Opened = match &spec {
         SourceSpec::Twin => {
             if args.speed.is_some() {
                 anyhow::bail!("--speed paces a replay; the twin's pace is the twin's own");
             }
             let twin = TwinFrameSource::open(rt.node(), c.width, c.height)?;
-            (Box::new(twin), None)
+            (Box::new(twin), None, None)
         }
         SourceSpec::Replay(dir) => {
             let speed = args.speed.unwrap_or(1.0);
             (
                 Box::new(ReplaySource::open(dir, Pacing::Speed(speed))?),
+                None,
                 None,
             )
         }
@@ -173,8 +174,17 @@ fn serve_vehicle(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
             })??;
         }
     })?;
+    if let Some(say) = at_exit {
+        say(camera.published());
+    }
     Ok(())
 }
+
+/// What a source says of itself when the camera stops, given the frames published.
+type AtExit = Box<dyn Fn(u64)>;
+
+/// A frame source opened: itself, its access units for the record, what it says at exit.
+type Opened = (Box<dyn FrameSource>, Option<Units>, Option<AtExit>);
 
 /// The access units a compressed source gave its decoder.
 type Units = std::sync::mpsc::Receiver<DecodedUnit>;
@@ -234,15 +244,30 @@ fn unit_parts(u: DecodedUnit) -> (UnitInfo, Vec<u8>) {
 
 /// The RTP/H.264 source on `addr`, frames scaled to the scenario's camera, and its access units.
 #[cfg(feature = "video")]
-fn rtp_source(
-    addr: std::net::SocketAddr,
-    width: u32,
-    height: u32,
-) -> anyhow::Result<(Box<dyn FrameSource>, Option<Units>)> {
+fn rtp_source(addr: std::net::SocketAddr, width: u32, height: u32) -> anyhow::Result<Opened> {
     let (tx, rx) = std::sync::mpsc::sync_channel(UNITS_QUEUED);
     let mut config = video::source::SourceConfig::new(addr, width, height);
     config.access_units = Some(tx);
-    Ok((Box::new(video::source::RtpSource::open(config)?), Some(rx)))
+    let source = video::source::RtpSource::open(config)?;
+    let watch = source.watch();
+    // The stream's counts once the camera stops: what was received, decoded and handed over (a
+    // benchmark divides the process's CPU by them).
+    let at_exit: AtExit = Box::new(move |published| {
+        let s = watch.stats();
+        tracing::info!(
+            published,
+            access_units = s.stream.access_units,
+            keyframes = s.stream.keyframes,
+            lost_packets = s.stream.lost,
+            damaged = s.stream.damaged,
+            decoded = s.decoded,
+            handed_over = s.yielded,
+            replaced = s.replaced,
+            skipped = s.skipped,
+            "the stream's counts"
+        );
+    });
+    Ok((Box::new(source), Some(rx), Some(at_exit)))
 }
 
 /// Without the video path there are no units.
@@ -255,11 +280,7 @@ fn unit_parts(u: DecodedUnit) -> (UnitInfo, Vec<u8>) {
 }
 
 #[cfg(not(feature = "video"))]
-fn rtp_source(
-    addr: std::net::SocketAddr,
-    _width: u32,
-    _height: u32,
-) -> anyhow::Result<(Box<dyn FrameSource>, Option<Units>)> {
+fn rtp_source(addr: std::net::SocketAddr, _width: u32, _height: u32) -> anyhow::Result<Opened> {
     anyhow::bail!(
         "--source rtp:{addr}: this camera was built without the RTP/H.264 video path; install \
          GStreamer (scripts/install-gstreamer) and build it with `cargo build --release -p camera \

@@ -379,5 +379,24 @@ fn on_a_bad_rtp_stream_the_camera_says_so_once_per_event_and_picks_it_up_again()
         "{refused} lines about refused packets\n{log}"
     );
     assert!(!log.contains("panicked"), "{log}");
-    camera.terminate(T);
+    assert!(camera.terminate(T).success(), "{}", camera.log());
+    // Once stopped it says what the stream gave (what scripts/bench-camera-video divides the
+    // camera's CPU by): both rounds' 45 access units each, pictures decoded from them, and the
+    // frames handed over, each published once.
+    let log = camera.log();
+    let line = log
+        .lines()
+        .find(|l| l.contains("the stream's counts"))
+        .unwrap_or_else(|| panic!("no counts once stopped\n{log}"));
+    let field = |key: &str| -> u64 {
+        line.split_whitespace()
+            .find_map(|w| w.strip_prefix(&format!("{key}=")))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("no {key} in `{line}`"))
+    };
+    assert_eq!(field("access_units"), 90, "{line}");
+    let (decoded, handed_over) = (field("decoded"), field("handed_over"));
+    assert!(decoded > 0 && decoded <= 90, "{line}");
+    assert!(handed_over > 0 && handed_over <= decoded, "{line}");
+    assert_eq!(field("published"), handed_over, "{line}");
 }

@@ -8,6 +8,12 @@
 //! nice cargo run --release -p video --features gstreamer --example perception -- [FRAMES] [WxH] [SEED]
 //! ```
 //!
+//! `rates FRAMES SEED WxH@KBPS...` measures chosen sizes and bitrates without loss instead (the
+//! low rates that keep a flight record small), each row beside the same frames uncompressed, with
+//! the stream's own bitrate (the encoder's output over the nominal 5 frames/s). `rates --dive ...`
+//! sends frames along a tracking path instead of at random poses: a dive's sequence, each frame much
+//! like the last, which the encoder predicts (random poses are its worst case).
+//!
 //! A benchmark, not a test: `tests/perception.rs` holds a handful of frames to the published bound.
 //! `spread FRAMES SEEDS` prints, per seed, what that test measures (FRAMES frames at 2.5 Mbit/s,
 //! 1280x720, no loss, against the same frames uncompressed): the range its bounds allow for.
@@ -15,7 +21,7 @@
 #[path = "../tests/util/perceive.rs"]
 mod perceive;
 
-use perceive::{TABLE_HEADER, Wire, render, through_h264, uncompressed};
+use perceive::{TABLE_HEADER, Wire, render, render_dive, through_h264, uncompressed};
 use video::sender::Encoding;
 
 fn spread(n: usize, seeds: u64) {
@@ -39,8 +45,68 @@ fn spread(n: usize, seeds: u64) {
     }
 }
 
+/// `WxH@KBPS`.
+fn size_rate(s: &str) -> ((u32, u32), u32) {
+    let parse = || -> Option<((u32, u32), u32)> {
+        let (size, kbps) = s.split_once('@')?;
+        let (w, h) = size.split_once('x')?;
+        Some(((w.parse().ok()?, h.parse().ok()?), kbps.parse().ok()?))
+    };
+    parse().unwrap_or_else(|| panic!("`{s}`: expected WxH@KBPS, e.g. 640x360@250"))
+}
+
+fn rates(n: usize, seed: u64, dive: bool, wires: &[String]) {
+    let (scenario, frames) = if dive {
+        render_dive(n, seed)
+    } else {
+        render(n, seed)
+    };
+    println!(
+        "{n} frames of {}x{} ({}, every image effect, seed {seed}), 5 frames/s, a keyframe every 10, no loss\n",
+        scenario.camera.width,
+        scenario.camera.height,
+        if dive {
+            "along a tracking path"
+        } else {
+            "at random poses"
+        }
+    );
+    println!(
+        "| size | kbit/s asked | kbit/s sent | detected | Theta error p95 (deg) | ratio | x_g error p95 | ratio |\n|---|---:|---:|---:|---:|---:|---:|---:|"
+    );
+    let base = uncompressed(&scenario, &frames);
+    println!(
+        "| uncompressed | - | - | {:.1}% | {:.3} | 1.00x | {:.5} | 1.00x |",
+        100.0 * base.detection(),
+        base.p95_theta(),
+        base.p95_x_g()
+    );
+    for spec in wires {
+        let (size, kbps) = size_rate(spec);
+        let o = through_h264(&scenario, &frames, &Wire::bitrate(size, kbps, 0.0));
+        println!(
+            "| {}x{} | {kbps} | {:.0} | {:.1}% | {:.3} | {:.2}x | {:.5} | {:.2}x |",
+            size.0,
+            size.1,
+            o.bytes as f64 * 8.0 * 5.0 / n as f64 / 1e3,
+            100.0 * o.detection(),
+            o.p95_theta(),
+            o.p95_theta() / base.p95_theta(),
+            o.p95_x_g(),
+            o.p95_x_g() / base.p95_x_g(),
+        );
+    }
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().map(String::as_str) == Some("rates") {
+        let dive = args.get(1).map(String::as_str) == Some("--dive");
+        let args = &args[1 + dive as usize..];
+        let n = args.first().map_or(500, |s| s.parse().expect("FRAMES"));
+        let seed = args.get(1).map_or(42, |s| s.parse().expect("SEED"));
+        return rates(n, seed, dive, &args[2.min(args.len())..]);
+    }
     if args.first().map(String::as_str) == Some("spread") {
         let n = args.get(1).map_or(40, |s| s.parse().expect("FRAMES"));
         return spread(n, args.get(2).map_or(10, |s| s.parse().expect("SEEDS")));

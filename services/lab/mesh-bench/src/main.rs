@@ -74,7 +74,8 @@ struct VehicleArgs {
     /// Write the Markdown report here too.
     #[arg(long)]
     markdown: Option<PathBuf>,
-    /// Keep every frame's latency here (CSV: seq,trial,step,latency_ns), to look into the tail.
+    /// Keep every frame's latency here (CSV: seq,trial,step,time_ns,sent_ns,latency_ns), to look
+    /// into the tail.
     #[arg(long)]
     latencies: Option<PathBuf>,
     /// Then measure the vehicle's limit at the same pace: the bare ring in the vehicle's shape (as
@@ -92,6 +93,17 @@ struct VehicleArgs {
     /// The MAVLink run's mesh file.
     #[arg(long, default_value = "config/bluerov2.toml")]
     mavlink_mesh: PathBuf,
+    /// The camera over RTP/H.264 as a BlueROV2's: the twin streams its frames on UDP loopback and
+    /// the camera decodes them (both built with `--features video`); each frame is also timed from
+    /// its last packet sent to its cable observation. Not with --mavlink.
+    #[arg(long, conflicts_with = "mavlink")]
+    video: bool,
+    /// --video: the twin's bitrate (kbit/s).
+    #[arg(long, default_value_t = 4000, requires = "video")]
+    video_kbps: u32,
+    /// --video: the size the twin sends, WIDTHxHEIGHT.
+    #[arg(long, default_value = "1920x1080", requires = "video")]
+    video_size: String,
 }
 
 #[derive(Args)]
@@ -288,7 +300,12 @@ fn vehicle(args: &VehicleArgs) -> Result<()> {
         anyhow::bail!("--speed {} must be a number > 0", args.speed);
     }
     let exe = std::env::current_exe()?;
-    let setup = vehicle_setup(args, &args.files, VehiclePath::Twin)?;
+    let path = if args.video {
+        VehiclePath::Video
+    } else {
+        VehiclePath::Twin
+    };
+    let setup = vehicle_setup(args, &args.files, path)?;
     let scenario = setup.run.scenario()?;
     let mut run = mesh_bench::vehicle::run(&setup)?;
     if args.limit {
@@ -360,6 +377,10 @@ fn vehicle_setup(
         drop_probability: twin.frames.dropped.rate(),
         period_s: scenario.timing.sample_time_s,
         keep_latencies: args.latencies.clone(),
+        video: mesh_bench::vehicle::VideoStream {
+            kbps: args.video_kbps,
+            size: args.video_size.clone(),
+        },
     })
 }
 

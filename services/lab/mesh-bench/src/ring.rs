@@ -492,6 +492,8 @@ fn simulator(
                     seq,
                     trial: sent.stamp.episode,
                     step: sent.stamp.step,
+                    time_ns: sent.stamp.time_ns,
+                    sent_ns: sent.stamp.time_ns,
                     latency: Duration::from_nanos(t.saturating_sub(sent.stamp.time_ns)),
                 });
             }

@@ -15,6 +15,12 @@
 //! command off its socket (the wire's far end: the driver's socket, the kernel's and the autopilot's
 //! wake-up included). The driver sends MANUAL_CONTROL at a steady 20 Hz, holding the last command
 //! between steps; held repeats are not answers, the one sent at once for a new step is.
+//!
+//! With `--video` the camera comes as a BlueROV2's does, RTP/H.264 on UDP loopback: the twin encodes
+//! its frames (`vehicle-twin --video`) and the camera decodes them (`camera --source rtp:...`), both
+//! built with the `video` feature. Each frame is then timed from its last packet sent, and a
+//! subscriber of the bench's also times it to its cable observation (perception's answer; the
+//! subscriber's own wake-up included, as any consumer's would be).
 
 use crate::procfs;
 use crate::runs::{ProcessUse, RingRun, Tick, VehicleRunSetup, usage};
@@ -40,6 +46,8 @@ pub enum VehiclePath {
     Twin,
     /// `config/bluerov2.toml`: the twin's ArduSub stand-in, piloted with MANUAL_CONTROL over UDP.
     Mavlink,
+    /// `config/vehicle.toml` with the camera over RTP/H.264 (`--video`).
+    Video,
 }
 
 impl VehiclePath {
@@ -51,6 +59,9 @@ impl VehiclePath {
             }
             VehiclePath::Mavlink => {
                 "twin frame published → first MANUAL_CONTROL carrying its command, read by the twin's ArduSub stand-in (MAVLink, UDP loopback)"
+            }
+            VehiclePath::Video => {
+                "twin frame's last RTP/H.264 packet sent → setpoints at the twin's thrusters (the camera decoding the stream)"
             }
         }
     }
@@ -71,6 +82,16 @@ pub struct VehicleSetup {
     pub period_s: f64,
     /// Where to keep every frame's latency (the twin's CSV), if anywhere.
     pub keep_latencies: Option<PathBuf>,
+    /// The twin's stream on the [`VehiclePath::Video`] path.
+    pub video: VideoStream,
+}
+
+/// The twin's RTP/H.264 stream (`vehicle-twin --video-kbps`, `--video-size`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VideoStream {
+    pub kbps: u32,
+    /// WIDTHxHEIGHT.
+    pub size: String,
 }
 
 impl VehicleSetup {
@@ -111,6 +132,15 @@ pub struct VehicleRun {
     /// The same over MAVLink, run after this one (`--mavlink`).
     #[serde(default)]
     pub mavlink: Option<Box<VehicleRun>>,
+    /// Over RTP/H.264: the stream, and per answered frame the time from its last packet sent to
+    /// its cable observation at the bench's subscriber (ns).
+    #[serde(default)]
+    pub video: Option<VideoStream>,
+    #[serde(default)]
+    pub to_observation: Option<Summary>,
+    /// The dive's length in the record (s): the twin's trials at the control period.
+    #[serde(default)]
+    pub dive_s: f64,
 }
 
 /// What the vehicle's path costs on this machine without the vehicle's work: the bare ring in the
@@ -197,7 +227,29 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
                 })
                 .collect()
         }
+        // The stream on a free loopback port.
+        VehiclePath::Video => {
+            let port = std::net::UdpSocket::bind("127.0.0.1:0")?
+                .local_addr()?
+                .port();
+            sets.into_iter()
+                .map(|(k, v)| match k {
+                    "video" => (k, format!("--video=rtp:127.0.0.1:{port}")),
+                    "source" => (k, format!("rtp:127.0.0.1:{port}")),
+                    _ => (k, v),
+                })
+                .chain([
+                    ("video_kbps", setup.video.kbps.to_string()),
+                    ("video_size", setup.video.size.clone()),
+                ])
+                .filter(|(_, v)| !v.is_empty())
+                .collect()
+        }
     };
+    // Over RTP/H.264, each frame's cable observation as a subscriber of the bench's takes it.
+    let observations = (setup.path == VehiclePath::Video)
+        .then(|| ObservationWatch::start(&ns.iox))
+        .transpose()?;
     std::fs::create_dir_all(scratch.join("record"))?;
     let expected_s =
         trials as f64 * (setup.steps_per_trial + 1) as f64 * setup.period_s / setup.speed;
@@ -248,6 +300,7 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     }
     let status = sup.try_status();
     let wall_s = started.elapsed().as_secs_f64();
+    let observed = observations.map(ObservationWatch::stop).transpose()?;
     if !status.is_some_and(|s| s.success()) {
         bail!("the vehicle mesh failed ({status:?})\n{}", sup.tail(40));
     }
@@ -256,8 +309,21 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     if let Some(keep) = &setup.keep_latencies {
         std::fs::write(keep, &text).with_context(|| format!("writing {}", keep.display()))?;
     }
-    let latencies = records::latency::read_latencies(&text)
+    let samples = records::latency::read_samples(&text)
         .map_err(|e| anyhow::anyhow!("{}: {e}", latency_file.display()))?;
+    let latencies: Vec<u64> = samples
+        .iter()
+        .map(|s| s.latency.as_nanos() as u64)
+        .collect();
+    let to_observation = observed.map(|seen| {
+        let times = to_observation(&samples, &seen);
+        eprintln!(
+            "mesh-bench: vehicle: {} of {} answered frames' observations seen",
+            times.len(),
+            samples.len()
+        );
+        Summary::of(&times)
+    });
     // The steady window: every service up, from 10 s in (start-up and the first trial's set-up out),
     // to the last reading with every process still there (they stop one by one).
     let skip = (10.0e9 / period_ns).ceil() as u64;
@@ -285,6 +351,9 @@ pub fn run(setup: &VehicleSetup) -> Result<VehicleRun> {
     Ok(VehicleRun {
         path: setup.path,
         mavlink: None,
+        video: (setup.path == VehiclePath::Video).then(|| setup.video.clone()),
+        to_observation,
+        dive_s: trials as f64 * (setup.steps_per_trial + 1) as f64 * setup.period_s,
         record_bytes,
         speed: setup.speed,
         trials,
@@ -308,6 +377,98 @@ pub fn p99_interval(latencies: &[u64]) -> Option<[u64; 2]> {
     let mut v = latencies.to_vec();
     v.sort_unstable();
     Some([v[lo], v[hi]])
+}
+
+/// Each frame's time from its last packet sent (the twin's `sent_ns`) to its cable observation's
+/// first arrival at the bench's subscriber, matched by the frame's time; frames whose observation
+/// was not seen are left out.
+pub fn to_observation(samples: &[records::latency::Sample], seen: &[(u64, u64)]) -> Vec<u64> {
+    let arrival: std::collections::HashMap<u64, u64> = seen.iter().rev().copied().collect();
+    samples
+        .iter()
+        .filter_map(|s| {
+            arrival
+                .get(&s.time_ns)
+                .map(|&at| at.saturating_sub(s.sent_ns))
+        })
+        .collect()
+}
+
+/// A subscriber to the vehicle's cable observations on a thread of its own, noting when each
+/// arrives (its stamp's `time_ns`, the monotonic clock when taken).
+struct ObservationWatch {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: std::thread::JoinHandle<Result<Vec<(u64, u64)>>>,
+}
+
+impl ObservationWatch {
+    /// Subscribed once this returns (before the mesh starts, so no observation is missed).
+    fn start(iox: &runtime::IoxSettings) -> Result<Self> {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let stop = std::sync::Arc::new(AtomicBool::new(false));
+        let (ready_tx, ready) = std::sync::mpsc::channel();
+        let iox = iox.clone();
+        let flag = stop.clone();
+        let thread = std::thread::spawn(move || -> Result<Vec<(u64, u64)>> {
+            use iceoryx2::prelude::*;
+            let opened = crate::probe::node(&iox, "mesh-bench-obs").and_then(|node| {
+                let inbox = messages::Inbox::<messages::CableObservationMsg>::open(
+                    &node,
+                    messages::Endpoint::Vehicle,
+                    &messages::topics::CABLE_OBSERVATION,
+                )?;
+                Ok((node, inbox))
+            });
+            let (_node, inbox) = match opened {
+                Ok(o) => {
+                    let _ = ready_tx.send(Ok(()));
+                    o
+                }
+                Err(e) => {
+                    let _ = ready_tx.send(Err(anyhow::anyhow!("{e:#}")));
+                    return Ok(Vec::new());
+                }
+            };
+            let waitset = WaitSetBuilder::new()
+                .create::<ipc::Service>()
+                .map_err(|e| anyhow::anyhow!("cannot create a WaitSet: {e:?}"))?;
+            let _guard = waitset
+                .attach_notification(inbox.listener())
+                .map_err(|e| anyhow::anyhow!("cannot attach a listener: {e:?}"))?;
+            let mut seen = Vec::new();
+            let mut last = None;
+            while !flag.load(Ordering::Relaxed) {
+                waitset
+                    .wait_and_process_once_with_timeout(
+                        |_| CallbackProgression::Continue,
+                        Duration::from_millis(100),
+                    )
+                    .map_err(|e| anyhow::anyhow!("the observations' wait: {e:?}"))?;
+                let _ = inbox.listener().try_wait(|_| {});
+                while let Some(m) = inbox.receive()? {
+                    let t = monotonic_ns();
+                    // A re-sent frame's observation again: its first arrival counts.
+                    if last != Some(m.stamp.time_ns) {
+                        seen.push((m.stamp.time_ns, t));
+                        last = Some(m.stamp.time_ns);
+                    }
+                }
+            }
+            Ok(seen)
+        });
+        ready
+            .recv()
+            .context("the observations' subscriber")?
+            .context("the observations' subscriber")?;
+        Ok(ObservationWatch { stop, thread })
+    }
+
+    fn stop(self) -> Result<Vec<(u64, u64)>> {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        self.thread
+            .join()
+            .map_err(|_| anyhow::anyhow!("the observations' subscriber panicked"))?
+    }
 }
 
 /// Several runs' latencies (ns; each a name and its frames) as a Markdown table: each run's frames,
@@ -382,13 +543,32 @@ impl VehicleRun {
         );
         let _ = writeln!(
             md,
-            "| {} | {:.0} µs | {:.0} µs | {:.0} µs | {:.0} µs |\n",
+            "| {} | {:.0} µs | {:.0} µs | {:.0} µs | {:.0} µs |",
             self.path.what(),
             us(self.latency.p50),
             us(self.latency.p99),
             us(self.latency.max),
             self.latency.mean / 1e3
         );
+        if let Some(o) = &self.to_observation {
+            let _ = writeln!(
+                md,
+                "| twin frame's last RTP/H.264 packet sent → its cable observation at a subscriber ({} frames) | {:.0} µs | {:.0} µs | {:.0} µs | {:.0} µs |",
+                o.n,
+                us(o.p50),
+                us(o.p99),
+                us(o.max),
+                o.mean / 1e3
+            );
+        }
+        md.push('\n');
+        if let Some(v) = &self.video {
+            let _ = writeln!(
+                md,
+                "The twin's stream: RTP/H.264 on UDP loopback, {}, {} kbit/s.\n",
+                v.size, v.kbps
+            );
+        }
         let _ = match self.p99_interval {
             Some([lo, hi]) => writeln!(
                 md,
@@ -440,13 +620,25 @@ impl VehicleRun {
         }
         // A minute at the vehicle's pace is 60 / period frames; the timed frames are the answered ones.
         let frames = (self.latency.n as f64).max(1.0);
-        let _ = writeln!(
-            md,
-            "\nFlight record (every frame): {:.1} MB, {:.1} kB per frame timed, {:.1} MB per minute at 5 Hz.",
-            self.record_bytes as f64 / 1e6,
-            self.record_bytes as f64 / frames / 1e3,
-            self.record_bytes as f64 / frames * 300.0 / 1e6,
-        );
+        if self.video.is_some() {
+            // The stream holds every frame; the raw images are thinned (the recorder's
+            // --video-frame-every).
+            let _ = writeln!(
+                md,
+                "\nFlight record (the stream, raw images thinned): {:.1} MB over a dive of {:.0} s, {:.2} MB per minute of dive.",
+                self.record_bytes as f64 / 1e6,
+                self.dive_s,
+                self.record_bytes as f64 / (self.dive_s / 60.0).max(1e-9) / 1e6,
+            );
+        } else {
+            let _ = writeln!(
+                md,
+                "\nFlight record (every frame): {:.1} MB, {:.1} kB per frame timed, {:.1} MB per minute at 5 Hz.",
+                self.record_bytes as f64 / 1e6,
+                self.record_bytes as f64 / frames / 1e3,
+                self.record_bytes as f64 / frames * 300.0 / 1e6,
+            );
+        }
         if let Some(mavlink) = &self.mavlink {
             md.push('\n');
             md.push_str(&self.paths_table(mavlink));
@@ -510,6 +702,10 @@ mod tests {
             drop_probability: 0.03,
             period_s: 0.2,
             keep_latencies: None,
+            video: VideoStream {
+                kbps: 4000,
+                size: "1920x1080".into(),
+            },
         };
         let trials = setup.trials();
         // 451 frames a trial, 3% dropped: 437.5 answered frames a trial at most.
@@ -560,6 +756,51 @@ mod tests {
         assert!(md.contains("The vehicle's p50 is 1.10x the ring's plus perception's (1000 µs); its p99 1.25x the ring's."), "{md}");
         let without = VehicleRun { limit: None, ..run };
         assert!(!without.markdown(1000).contains("limit"));
+    }
+
+    #[test]
+    fn each_frame_is_timed_to_its_observations_first_arrival() {
+        let sample = |time_ns: u64, sent_ns: u64| records::latency::Sample {
+            seq: time_ns / 200_000_000,
+            trial: 0,
+            step: 0,
+            time_ns,
+            sent_ns,
+            latency: Duration::from_millis(3),
+        };
+        let samples = [
+            sample(200_000_000, 10_000_000),
+            sample(400_000_000, 210_000_000),
+            sample(600_000_000, 410_000_000),
+        ];
+        // The second frame's observation came twice (a re-send): its first arrival counts; the
+        // third's never came; one observation answers no timed frame.
+        let seen = [
+            (200_000_000, 12_500_000),
+            (400_000_000, 214_000_000),
+            (400_000_000, 215_000_000),
+            (800_000_000, 700_000_000),
+        ];
+        assert_eq!(to_observation(&samples, &seen), vec![2_500_000, 4_000_000]);
+        let run = VehicleRun {
+            path: VehiclePath::Video,
+            latency: Summary::of(&[3_000_000]),
+            to_observation: Some(Summary::of(&to_observation(&samples, &seen))),
+            video: Some(VideoStream {
+                kbps: 250,
+                size: "640x360".into(),
+            }),
+            record_bytes: 3_000_000,
+            dive_s: 120.0,
+            ..Default::default()
+        };
+        let md = run.markdown(1);
+        assert!(
+            md.contains("its cable observation at a subscriber (2 frames)"),
+            "{md}"
+        );
+        assert!(md.contains("640x360, 250 kbit/s"), "{md}");
+        assert!(md.contains("1.50 MB per minute of dive"), "{md}");
     }
 
     #[test]

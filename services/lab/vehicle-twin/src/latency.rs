@@ -30,13 +30,16 @@ impl LatencyMeter {
         Self::default()
     }
 
-    /// The frame `shot` was published at `now` (a re-send of the same frame is not a new frame: do
-    /// not call this for it). An unanswered earlier frame is forgotten.
-    pub fn published(&mut self, shot: &Shot, now: Instant) {
+    /// The frame `shot` was published at `now`, `now_ns` on the monotonic clock (a re-send of the
+    /// same frame is not a new frame: do not call this for it). An unanswered earlier frame is
+    /// forgotten.
+    pub fn published(&mut self, shot: &Shot, now: Instant, now_ns: u64) {
         let sample = Sample {
             seq: shot.seq,
             trial: shot.trial,
             step: shot.step,
+            time_ns: shot.time_ns(),
+            sent_ns: now_ns,
             latency: Duration::ZERO,
         };
         self.pending = Some((shot.time_ns(), sample, now));
@@ -97,18 +100,19 @@ mod tests {
         let (a, b) = shots();
         let t0 = Instant::now();
         let mut m = LatencyMeter::new();
-        m.published(&a, t0);
+        m.published(&a, t0, 1_000);
         assert_eq!(m.answered(b.time_ns(), t0 + Duration::from_micros(5)), None);
         let s = m
             .answered(a.time_ns(), t0 + Duration::from_micros(700))
             .expect("answered");
         assert_eq!((s.seq, s.step), (a.seq, a.step));
+        assert_eq!((s.time_ns, s.sent_ns), (a.time_ns(), 1_000));
         assert_eq!(s.latency, Duration::from_micros(700));
         // A second answer to the same frame is not a new sample.
         assert_eq!(m.answered(a.time_ns(), t0 + Duration::from_millis(1)), None);
         // An answer to a frame superseded by a newer one is not counted.
-        m.published(&a, t0);
-        m.published(&b, t0 + Duration::from_millis(200));
+        m.published(&a, t0, 0);
+        m.published(&b, t0 + Duration::from_millis(200), 0);
         assert_eq!(
             m.answered(a.time_ns(), t0 + Duration::from_millis(201)),
             None
@@ -129,7 +133,7 @@ mod tests {
         let mut m = LatencyMeter::new();
         // A held stick before the frame, then the frame.
         m.stick(at(0));
-        m.published(&a, at(100));
+        m.published(&a, at(100), 0);
         // Held repeats of the last step's stick: no tag follows them.
         m.stick(at(20_000));
         m.stick(at(70_000));
@@ -142,7 +146,7 @@ mod tests {
         m.stick(at(120_000));
         assert_eq!(m.tagged(ms(&a)), None);
         // A tag naming another frame than the pending one, or with no stick before it: none.
-        m.published(&b, at(200_000));
+        m.published(&b, at(200_000), 0);
         m.stick(at(201_000));
         assert_eq!(m.tagged(ms(&a)), None);
         assert_eq!(

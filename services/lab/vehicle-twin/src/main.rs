@@ -55,9 +55,11 @@ struct Args {
     /// Record the dive: every frame published, as a replayable dive (adapters::replay) in DIR.
     #[arg(long, value_name = "DIR")]
     record: Option<PathBuf>,
-    /// Write every frame's camera-to-thruster latency here (CSV: seq,trial,step,latency_ns): from the
-    /// frame's publication to the arrival of the setpoints answering it; with --autopilot (real time
-    /// only), to the first MANUAL_CONTROL carrying its command read off the autopilot's socket.
+    /// Write every frame's camera-to-thruster latency here (CSV:
+    /// seq,trial,step,time_ns,sent_ns,latency_ns): from the frame's publication (with --video, its
+    /// last packet sent; sent_ns on the monotonic clock) to the arrival of the setpoints answering
+    /// it; with --autopilot (real time only), to the first MANUAL_CONTROL carrying its command read
+    /// off the autopilot's socket.
     #[arg(long, value_name = "FILE")]
     latency: Option<PathBuf>,
     /// Stand in for a BlueROV2's ArduSub autopilot on this MAVLink port (`udpin:HOST:PORT`,
@@ -295,7 +297,8 @@ impl Camera {
         self.port.send(&meta, &self.image)?;
         // Timed from the send: rendering is the camera hardware's work, not the vehicle's.
         if !again && let Some(l) = latency.as_mut() {
-            l.meter.published(shot, Instant::now());
+            l.meter
+                .published(shot, Instant::now(), runtime::clock::monotonic_ns());
         }
         if !again && let Some(r) = self.recorder.as_mut() {
             r.write(&meta, &self.image)?;

@@ -45,6 +45,31 @@ pub fn render(n: usize, seed: u64) -> (Scenario, Vec<Truth>) {
     (scenario, frames)
 }
 
+/// `n` frames of the default scenario along a tracking path, one control period (0.2 s) apart,
+/// every image effect on: a dive's sequence as the encoder meets it, each frame much like the one
+/// before (the poses of `vision::pace::tracking_path`).
+pub fn render_dive(n: usize, seed: u64) -> (Scenario, Vec<Truth>) {
+    let scenario = Scenario::default();
+    let mut renderer = Renderer::from_scenario(&scenario, seed).expect("the default renderer");
+    let camera = renderer.camera().clone();
+    let cable = *renderer.cable();
+    let path = vision::pace::tracking_path(n, scenario.timing.sample_time_s);
+    let frames = path
+        .iter()
+        .enumerate()
+        .map(|(k, (pose, rate))| {
+            let truth = camera.view(pose, &cable).expect("the cable in view");
+            let frame = renderer.render_frame(pose, rate, k as u64);
+            Truth {
+                image: frame.data().to_vec(),
+                theta: truth.theta,
+                x_g: truth.x_g,
+            }
+        })
+        .collect();
+    (scenario, frames)
+}
+
 /// What perception made of a set of frames.
 #[derive(Clone, Debug, Default)]
 pub struct Outcome {
