@@ -478,6 +478,13 @@ fn the_driver_pilots_ardusub_as_a_companion() {
         "neutral {after:.3} s after the last step was taken, the deadline is {} s",
         deadline()
     );
+    // The commands stop when the next step's command is due, one sample period after the last
+    // step: from there to neutral is 400 ms at 5 Hz (the second missed frame), whatever the wake-up.
+    let since_due = after - 0.2;
+    assert!(
+        since_due <= 0.4 + WAKE_MARGIN,
+        "neutral {since_due:.3} s after the commands stopped (the next step's was due)"
+    );
     let drive_end = stop_tag;
     // Held neutral (a second of it: the heartbeats counted below span the whole run).
     let mut k = stop_tag;

@@ -397,6 +397,25 @@ impl Behaviour {
                 self.agent.restore(best.gain);
                 true
             }
+            Verdict::WorseThanStart { dof, restore } => {
+                tracing::warn!(
+                    dof = %self.dof(),
+                    trial,
+                    ?gain,
+                    evaluated,
+                    ?cost,
+                    worse = %dof,
+                    restored = restore.map(|b| b.trial),
+                    "evaluation: the pair costs {dof} more than the simulation policies did, beyond the tolerance; not a candidate for the best, the best pair's policy is restored"
+                );
+                match restore {
+                    Some(best) => {
+                        self.agent.restore(best.gain);
+                        true
+                    }
+                    None => false,
+                }
+            }
             Verdict::Failed { best } => {
                 let lost = self.agent.safety().evaluation_lost;
                 tracing::warn!(
@@ -659,17 +678,19 @@ mod tests {
             step_two_of(Dof::Yaw),
             step_two_of(Dof::Yaw),
         );
-        // Evaluations (even trials) of varying pair costs; learning trials in between.
+        // Evaluations (even trials) of varying pair costs; learning trials in between. Trial 4
+        // costs sway more than the start (restored whatever the score); trial 8 is within the start
+        // in both DOFs but worse than the best beyond the tolerance (restored).
         let offsets = [
             (0.2, 0.3),
             (0.1, 0.1),
-            (0.1, 0.35),
+            (0.1, 0.29),
             (0.2, 0.2),
             (0.3, 0.4),
             (0.1, 0.1),
             (0.05, 0.25),
             (0.1, 0.1),
-            (0.22, 0.4),
+            (0.15, 0.28),
         ];
         let (mut seq, mut bests, mut verdicts) = (0, Vec::new(), Vec::new());
         for (trial, &offset) in offsets.iter().enumerate() {

@@ -15,6 +15,12 @@
 //! name = "simulator"
 //! args = ["--episodes", "{episodes}"]   # {key} comes from `supervisor --set key=value`
 //! [[service]]
+//! name = "shore-link"
+//! binary = "{shore_link}"               # the program: a name in the binaries' directory, or a
+//!                                       # path (with a `/`, relative to the working directory)
+//! only_if = "{shore_link}"
+//! args = ["vehicle", "{auth}"]          # an argument that is only an empty placeholder is left out
+//! [[service]]
 //! name = "recorder"
 //! only_if = "{record}"                  # runs only when this is not empty
 //! observer = true                       # starts first (the others once it is ready), stops last
@@ -103,7 +109,9 @@ impl RestartPolicy {
 #[serde(deny_unknown_fields)]
 pub struct ServiceSpec {
     pub name: String,
-    /// The program (default: `name`), looked up in the binaries' directory.
+    /// The program (default: `name`): a name is looked up in the binaries' directory, a path (one
+    /// with a `/`: a program built elsewhere, such as the shore link's own workspace) is taken as it
+    /// is, relative to the working directory; may be a placeholder.
     pub binary: Option<String>,
     #[serde(default)]
     pub args: Vec<String>,
@@ -139,6 +147,12 @@ pub enum MeshError {
     },
     #[error("in mesh file {}: {message}", file.display())]
     Invalid { file: PathBuf, message: String },
+    #[error("service `{service}`: {} does not exist ({hint})", path.display())]
+    NoProgram {
+        service: String,
+        path: PathBuf,
+        hint: &'static str,
+    },
 }
 
 impl MeshFile {
@@ -236,9 +250,20 @@ impl MeshFile {
                 args.push(arg);
             }
         }
+        let binary = fill(&s.name, s.binary.as_deref().unwrap_or(&s.name))?;
+        if binary.trim().is_empty() {
+            return Err(MeshError::Invalid {
+                file: path.to_owned(),
+                message: format!(
+                    "service `{}`: binary `{}` is empty",
+                    s.name,
+                    s.binary.as_deref().unwrap_or_default()
+                ),
+            });
+        }
         Ok(ServiceCommand {
             name: s.name.clone(),
-            binary: s.binary.clone().unwrap_or_else(|| s.name.clone()),
+            binary,
             args,
             restart: s.restart.unwrap_or(self.restart.enabled),
             observer: s.observer,
@@ -278,12 +303,40 @@ impl MeshFile {
 #[derive(Clone, Debug, PartialEq)]
 pub struct ServiceCommand {
     pub name: String,
+    /// The program's name in the binaries' directory, or its path (see [`ServiceSpec::binary`]).
     pub binary: String,
     pub args: Vec<String>,
     pub restart: bool,
     /// Started first and stopped last (see [`ServiceSpec::observer`]).
     pub observer: bool,
     pub placement: Placement,
+}
+
+impl ServiceCommand {
+    /// The program to run: [`ServiceCommand::binary`] in `bin_dir`, or where it says when it is a
+    /// path (made absolute against the working directory, so the log shows where it is); an error
+    /// naming the service and the path when there is no such file.
+    pub fn program(&self, bin_dir: &Path) -> Result<PathBuf, MeshError> {
+        let (path, hint) = if self.binary.contains('/') {
+            (
+                std::path::absolute(&self.binary).unwrap_or_else(|_| PathBuf::from(&self.binary)),
+                "its `binary` is this path: build that program first",
+            )
+        } else {
+            (
+                bin_dir.join(&self.binary),
+                "build with cargo build --release",
+            )
+        };
+        if !path.is_file() {
+            return Err(MeshError::NoProgram {
+                service: self.name.clone(),
+                path,
+                hint,
+            });
+        }
+        Ok(path)
+    }
 }
 
 /// Replaces every `{key}` in `text`; the first key without a value is the error.
@@ -438,6 +491,123 @@ name = "monitor"
             err.to_string().contains("{episodes}") && err.to_string().contains("m.toml"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn a_program_is_a_name_in_the_bin_dir_or_a_path_from_a_placeholder() {
+        let text = r#"
+[mesh]
+endpoint = "vehicle"
+defaults = { link = "", auth = "" }
+[[service]]
+name = "camera"
+[[service]]
+name = "shore-link"
+binary = "{link}"
+only_if = "{link}"
+args = ["vehicle", "{auth}"]
+"#;
+        let file = Path::new("m.toml");
+        let mesh = MeshFile::parse(text, file).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let bin_dir = dir.path().join("bin");
+        std::fs::create_dir(&bin_dir).unwrap();
+        std::fs::write(bin_dir.join("camera"), "").unwrap();
+        let elsewhere = dir.path().join("other/target/release");
+        std::fs::create_dir_all(&elsewhere).unwrap();
+        std::fs::write(elsewhere.join("shore-link"), "").unwrap();
+
+        // The placeholder empty: no link; the others are found in the bin dir by name.
+        let cmds = mesh.commands(&BTreeMap::new(), file).unwrap();
+        assert_eq!(cmds.len(), 1);
+        assert_eq!(cmds[0].binary, "camera");
+        assert_eq!(cmds[0].program(&bin_dir).unwrap(), bin_dir.join("camera"));
+
+        // A path, absolute: taken as it is, not looked up in the bin dir.
+        let link = elsewhere.join("shore-link").display().to_string();
+        let vars = BTreeMap::from([
+            ("link".to_owned(), link.clone()),
+            ("auth".to_owned(), "--insecure".to_owned()),
+        ]);
+        let cmds = mesh.commands(&vars, file).unwrap();
+        assert_eq!(cmds[1].binary, link);
+        assert_eq!(
+            cmds[1].args,
+            ["--endpoint", "vehicle", "vehicle", "--insecure"]
+        );
+        assert_eq!(
+            cmds[1].program(&bin_dir).unwrap(),
+            elsewhere.join("shore-link")
+        );
+
+        // A relative path: against the working directory, made absolute.
+        let cwd = std::env::current_dir().unwrap();
+        let here = tempfile::tempdir_in(&cwd).unwrap();
+        std::fs::write(here.path().join("shore-link"), "").unwrap();
+        let relative = here
+            .path()
+            .strip_prefix(&cwd)
+            .unwrap()
+            .join("shore-link")
+            .display()
+            .to_string();
+        assert!(relative.contains('/') && !relative.starts_with('/'));
+        let vars = BTreeMap::from([("link".to_owned(), relative)]);
+        let cmds = mesh.commands(&vars, file).unwrap();
+        assert_eq!(cmds[1].args, ["--endpoint", "vehicle", "vehicle"]);
+        assert_eq!(
+            cmds[1].program(&bin_dir).unwrap(),
+            here.path().join("shore-link")
+        );
+
+        // No such program: the error names the service and the path.
+        let missing = elsewhere.join("shore-linc").display().to_string();
+        let vars = BTreeMap::from([("link".to_owned(), missing.clone())]);
+        let cmds = mesh.commands(&vars, file).unwrap();
+        let e = cmds[1].program(&bin_dir).unwrap_err().to_string();
+        assert!(
+            e.contains("service `shore-link`")
+                && e.contains(&missing)
+                && e.contains("does not exist"),
+            "{e}"
+        );
+        let gone = bin_dir.join("camera");
+        std::fs::remove_file(&gone).unwrap();
+        let e = cmds[0].program(&bin_dir).unwrap_err().to_string();
+        assert!(
+            e.contains("service `camera`") && e.contains(&gone.display().to_string()),
+            "{e}"
+        );
+        // A directory is no program.
+        let vars = BTreeMap::from([("link".to_owned(), elsewhere.display().to_string())]);
+        let cmds = mesh.commands(&vars, file).unwrap();
+        assert!(cmds[1].program(&bin_dir).is_err());
+    }
+
+    #[test]
+    fn a_binary_that_fills_empty_is_refused_by_name() {
+        let text = r#"
+[mesh]
+endpoint = "vehicle"
+[[service]]
+name = "shore-link"
+binary = "{link}"
+"#;
+        let mesh = MeshFile::parse(text, Path::new("m.toml")).unwrap();
+        let vars = BTreeMap::from([("link".to_owned(), String::new())]);
+        let e = mesh
+            .commands(&vars, Path::new("m.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("m.toml") && e.contains("service `shore-link`") && e.contains("{link}"),
+            "{e}"
+        );
+        let e = mesh
+            .commands(&BTreeMap::new(), Path::new("m.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--set link=VALUE"), "{e}");
     }
 
     #[test]

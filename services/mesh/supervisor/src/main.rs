@@ -222,6 +222,11 @@ fn run(args: Args) -> Result<ExitCode> {
             .context("the supervisor's directory")?
             .to_owned(),
     };
+    // Every program is there before anything starts.
+    let programs = commands
+        .iter()
+        .map(|c| c.program(&bin_dir))
+        .collect::<Result<Vec<_>, _>>()?;
     // Dropped last: removes the run's own namespace whichever way the run ends.
     let own = args.own_namespace.then(|| runtime::Namespace::new("mesh"));
     // What every service is given: the configuration (absolute: a service may run from elsewhere),
@@ -255,15 +260,7 @@ fn run(args: Args) -> Result<ExitCode> {
 
     let env = run.env();
     let mut services = Vec::new();
-    for cmd in commands {
-        let program = bin_dir.join(&cmd.binary);
-        if !program.exists() {
-            bail!(
-                "service `{}`: {} does not exist (build with cargo build --release)",
-                cmd.name,
-                program.display()
-            );
-        }
+    for (cmd, program) in commands.into_iter().zip(programs) {
         services.push(Service {
             cmd,
             program,

@@ -1,7 +1,8 @@
 //! `shore-link`: the vehicle's mesh seen from a shore computer, over zenoh with mutual TLS.
 //!
 //! - `shore-link keys DIR`: the vehicle's CA and the two key pairs (DIR/vehicle, DIR/shore).
-//! - `shore-link vehicle --listen ADDR:PORT --keys DIR/vehicle`: on the vehicle, beside its mesh.
+//! - `shore-link vehicle --listen ADDR:PORT --keys DIR/vehicle`: on the vehicle, a service of its
+//!   mesh (`config/vehicle.toml` runs it when `--set shore_link=PATH` names this program).
 //! - `shore-link shore --connect ADDR:PORT --keys DIR/shore`: on the shore.
 //! - `shore-link operator`: on the shore, the operator's side of the demo: receives the telemetry the
 //!   link brings up, shows only steps newer than those shown, records each arrival, and sends a
@@ -23,8 +24,8 @@ use iceoryx2_link::Link;
 use iceoryx2_link_tunnel::Tunnel;
 use messages::topics::{self, Endpoint, health, shore};
 use messages::{FrameInbox, Inbox, Mission, MissionCommand, Outbox, Topic};
-use runtime::Tally;
 use runtime::clock::monotonic_ns;
+use runtime::{IoxSettings, Tally};
 use shore_link::security::{self, KeyFiles, Security};
 use shore_link::{AllowList, Arrival, Judged, Report, Rogue, Shown, Side, TopicTraffic};
 use std::collections::BTreeMap;
@@ -41,29 +42,12 @@ mod relay;
     about = "Carries the vehicle's telemetry to the shore and the shore's commands back, over zenoh."
 )]
 struct Args {
+    /// The mesh whose topics cross (before or after the subcommand: the supervisor passes its mesh's
+    /// `--endpoint` first, as to every service).
+    #[arg(long, global = true, default_value = "vehicle")]
+    endpoint: Endpoint,
     #[command(subcommand)]
     command: Command,
-}
-
-#[derive(clap::Args, Clone, Debug)]
-struct Iox {
-    /// Prefix of every shared-memory file and socket (hosts of one machine need different ones).
-    #[arg(
-        long = "iox-prefix",
-        default_value = "ct_",
-        env = "CABLETRACK_IOX_PREFIX"
-    )]
-    prefix: String,
-    /// Directory of iceoryx2's sockets and node records.
-    #[arg(
-        long = "iox-root",
-        default_value = "/tmp/cabletrack/",
-        env = "CABLETRACK_IOX_ROOT"
-    )]
-    root: String,
-    /// The mesh whose topics cross.
-    #[arg(long, default_value = "vehicle")]
-    endpoint: Endpoint,
 }
 
 /// How this end authenticates: a key directory, or plain TCP by name.
@@ -95,7 +79,7 @@ enum Command {
         #[command(flatten)]
         auth: Auth,
         #[command(flatten)]
-        iox: Iox,
+        iox: IoxSettings,
     },
     /// The shore's end: connects to the vehicle's ENDPOINT, retrying while it is unreachable.
     Shore {
@@ -106,7 +90,7 @@ enum Command {
         #[command(flatten)]
         auth: Auth,
         #[command(flatten)]
-        iox: Iox,
+        iox: IoxSettings,
     },
     /// Makes the vehicle's CA and the two key pairs it signs: DIR/vehicle stays on the vehicle,
     /// DIR/shore goes to the shore computer. The CA's private key is not kept.
@@ -131,7 +115,7 @@ enum Command {
         #[arg(long)]
         frames: bool,
         #[command(flatten)]
-        iox: Iox,
+        iox: IoxSettings,
     },
     /// A bad network between two network namespaces: forwards the IP packets of a TUN device in
     /// each (NAMESPACE/DEVICE, both made beforehand with `ip tuntap add ... mode tun`), each
@@ -154,7 +138,7 @@ enum Command {
     /// the link holds the topic, and this is refused).
     Stop {
         #[command(flatten)]
-        iox: Iox,
+        iox: IoxSettings,
     },
     /// Prints the monotonic clock (ns), as the records read it.
     Now,
@@ -190,6 +174,7 @@ enum Command {
 fn main() -> ExitCode {
     init_logging();
     let args = Args::parse();
+    let endpoint = args.endpoint;
     let result = match args.command {
         Command::Vehicle {
             listen,
@@ -197,13 +182,21 @@ fn main() -> ExitCode {
             record,
             auth,
             iox,
-        } => link(Side::Vehicle, &listen, frames, record, &auth, &iox),
+        } => link(
+            Side::Vehicle,
+            &listen,
+            frames,
+            record,
+            &auth,
+            &iox,
+            endpoint,
+        ),
         Command::Shore {
             connect,
             frames,
             auth,
             iox,
-        } => link(Side::Shore, &connect, frames, None, &auth, &iox),
+        } => link(Side::Shore, &connect, frames, None, &auth, &iox, endpoint),
         Command::Keys {
             dir,
             vehicle_names,
@@ -214,7 +207,7 @@ fn main() -> ExitCode {
             record,
             frames,
             iox,
-        } => operator(seconds, &record, frames, &iox),
+        } => operator(seconds, &record, frames, &iox, endpoint),
         Command::Impair {
             vehicle,
             shore,
@@ -330,7 +323,12 @@ fn keys(dir: &std::path::Path, mut names: Vec<String>, days: u32) -> Result<()> 
     println!(
         "the CA's private key was not kept: to replace a pair, remove {d}/vehicle and {d}/shore and run keys again"
     );
-    println!("on the vehicle:  scripts/shore-link vehicle --listen ADDR:7447 --keys {d}/vehicle");
+    println!(
+        "on the vehicle:  scripts/supervisor --set shore_link=services/shore/shore-link/target/release/shore-link \\"
+    );
+    println!(
+        "                   --set link_listen=ADDR:7447 --set link_auth=--keys={d}/vehicle ..."
+    );
     println!(
         "to the shore:    scp -rp {d}/shore SHORE:cabletrack-shore-keys   (then remove {d}/shore here)"
     );
@@ -344,19 +342,8 @@ fn keys(dir: &std::path::Path, mut names: Vec<String>, days: u32) -> Result<()> 
 /// The iceoryx2 settings of this end. A service the other end offers is created here (a mirror)
 /// with this host's *default* settings, not the remote service's: the defaults are raised to the
 /// largest any topic of the contract asks for, so every process can still open its topics.
-fn iox_config(iox: &Iox) -> Result<IoxConfig> {
-    let root = if iox.root.ends_with('/') {
-        iox.root.clone()
-    } else {
-        format!("{}/", iox.root)
-    };
-    let mut cfg = IoxConfig::default();
-    cfg.global.prefix = FileName::new(iox.prefix.as_bytes())
-        .map_err(|e| anyhow!("--iox-prefix `{}`: {e:?}", iox.prefix))?;
-    cfg.global.set_root_path(
-        &iceoryx2::prelude::Path::new(root.as_bytes())
-            .map_err(|e| anyhow!("--iox-root `{root}`: {e:?}"))?,
-    );
+fn iox_config(iox: &IoxSettings) -> Result<IoxConfig> {
+    let mut cfg = iox.config()?;
     let all = [
         topics::VEHICLE_STATE.qos,
         topics::CAMERA_FRAME.qos,
@@ -408,10 +395,11 @@ fn link(
     frames: bool,
     record: Option<PathBuf>,
     auth: &Auth,
-    iox: &Iox,
+    iox: &IoxSettings,
+    mesh: Endpoint,
 ) -> Result<()> {
     let cfg = iox_config(iox)?;
-    let allow = AllowList::new(iox.endpoint, frames);
+    let allow = AllowList::new(mesh, frames);
     let security = security_of(auth)?;
     let endpoint = security::endpoint(endpoint, &security)?;
     let mut z = zenoh::Config::default();
@@ -449,7 +437,7 @@ fn link(
     }
     // The demo's record of the vehicle's own traffic: observations and setpoints as they arrive here.
     let recorder = match (&record, side) {
-        (Some(path), Side::Vehicle) => Some(Recorder::open(&cfg, iox.endpoint, path)?),
+        (Some(path), Side::Vehicle) => Some(Recorder::open(&cfg, mesh, path)?),
         _ => None,
     };
     // On the vehicle, the mission topic's publishers are the link's alone: its mirror of the shore's
@@ -561,10 +549,15 @@ fn link(
             CallbackProgression::Continue
         })
         .map_err(|e| anyhow!("waiting: {e:?}"))?;
-    match failure {
-        Some(e) => Err(e),
-        None => Ok(()),
+    if let Some(e) = failure {
+        return Err(e);
     }
+    // What reached the vehicle since the last wake-up goes into the record too: the shore's stop
+    // among it, which stops the mesh, this end with it, at once.
+    if let Some(r) = &mut recorder {
+        r.take()?;
+    }
+    Ok(())
 }
 
 /// The vehicle end's hold on the mission topic's spare publisher place (see `link`).
@@ -678,10 +671,15 @@ impl Recorder {
 }
 
 /// The operator's side of the demo.
-fn operator(seconds: f64, record: &std::path::Path, frames: bool, iox: &Iox) -> Result<()> {
+fn operator(
+    seconds: f64,
+    record: &std::path::Path,
+    frames: bool,
+    iox: &IoxSettings,
+    endpoint: Endpoint,
+) -> Result<()> {
     let cfg = iox_config(iox)?;
     let node = node(&cfg, "operator")?;
-    let endpoint = iox.endpoint;
     let observations = Inbox::open(&node, endpoint, &topics::CABLE_OBSERVATION)?;
     let learning = [
         Inbox::open(&node, endpoint, &topics::SWAY_LEARNING)?,
@@ -837,7 +835,7 @@ fn operator(seconds: f64, record: &std::path::Path, frames: bool, iox: &Iox) -> 
 }
 
 /// `shore-link stop`.
-fn stop(iox: &Iox) -> Result<()> {
+fn stop(iox: &IoxSettings) -> Result<()> {
     let cfg = iox_config(iox)?;
     let node = node(&cfg, "stop")?;
     let mission = Outbox::open_service(

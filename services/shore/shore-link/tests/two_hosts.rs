@@ -1,7 +1,8 @@
 //! Two hosts on one machine: `scripts/shore-link --demo` makes two network namespaces joined by a
 //! veth pair (or, under `--netem` on a kernel without netem, two TUN devices and `shore-link impair`
-//! between them), runs the vehicle's mesh against the twin and the link's vehicle end in one, the
-//! link's shore end and an operator in the other, and removes everything when done. Needs root
+//! between them), runs the vehicle's mesh against the twin, the link's vehicle end one of its
+//! services, in one, the link's shore end and an operator in the other, and removes everything when
+//! done. Needs root
 //! (network namespaces) and the main workspace's binaries (`scripts/test-shore-link` builds both).
 //!
 //! Every run must keep the link's properties: the shore shows telemetry in order or not at all
@@ -117,6 +118,22 @@ fn log(dir: &tempfile::TempDir, name: &str) -> String {
     std::fs::read_to_string(dir.path().join("logs").join(name)).unwrap()
 }
 
+/// The vehicle's log: its supervisor's, with its services' (the link's vehicle end among them).
+const VEHICLE_LOG: &str = "supervisor.log";
+
+/// The link's vehicle end ran as a service of the vehicle's mesh: its supervisor started it and
+/// stopped it with the others once the shore's stop came.
+fn assert_the_mesh_ran_the_link(logs: &tempfile::TempDir) {
+    let text = log(logs, VEHICLE_LOG);
+    for (what, event) in [("started", "started"), ("stopped", "stopped")] {
+        assert!(
+            text.lines()
+                .any(|l| l.contains(event) && l.contains("service=shore-link")),
+            "the vehicle's supervisor never {what} the link's vehicle end:\n{text}"
+        );
+    }
+}
+
 #[test]
 fn only_the_real_shore_reads_and_stops_the_vehicle_and_tls_costs_little_against_plain_tcp() {
     let _one = one_at_a_time();
@@ -124,7 +141,8 @@ fn only_the_real_shore_reads_and_stops_the_vehicle_and_tls_costs_little_against_
     let (plain, plain_logs) = demo(&["--insecure"]);
     assert_eq!(plain.security, "insecure");
     assert_the_links_properties(&plain);
-    for end in ["link-vehicle.log", "link-shore.log"] {
+    assert_the_mesh_ran_the_link(&plain_logs);
+    for end in [VEHICLE_LOG, "link-shore.log"] {
         let text = log(&plain_logs, end);
         assert!(
             text.lines()
@@ -136,6 +154,7 @@ fn only_the_real_shore_reads_and_stops_the_vehicle_and_tls_costs_little_against_
     let (tls, tls_logs) = demo(&["--rogue"]);
     assert_eq!(tls.security, "tls");
     assert_the_links_properties(&tls);
+    assert_the_mesh_ran_the_link(&tls_logs);
     // On a quiet link every observation sent while the shore watched is shown; one may be in
     // flight when the operator stops watching.
     for r in [&plain, &tls] {
@@ -159,7 +178,7 @@ fn only_the_real_shore_reads_and_stops_the_vehicle_and_tls_costs_little_against_
         "a process on the vehicle could publish on the mission topic: {tls:?}"
     );
     assert!(
-        !log(&tls_logs, "link-vehicle.log").contains("--insecure"),
+        !log(&tls_logs, VEHICLE_LOG).contains("--insecure"),
         "the TLS run warned about --insecure"
     );
     // The figure, not a threshold: what TLS adds to the link's latency in this run.
