@@ -144,11 +144,13 @@ impl<S: ThrusterSink> Driver<S> {
     }
 
     /// Whether `stamp`'s clock reads as the driver's: taken no later than `now_ns` and less than
-    /// the deadline before it.
+    /// the deadline before it. A clock so far behind that its age overflows is not.
     fn on_own_clock(&self, stamp: &messages::Stamp, now_ns: i64) -> bool {
         stamp.is_timed()
             && stamp.clock_ns <= now_ns
-            && now_ns - stamp.clock_ns < self.deadline().as_nanos() as i64
+            && now_ns
+                .checked_sub(stamp.clock_ns)
+                .is_some_and(|age| age < self.deadline().as_nanos() as i64)
     }
 
     /// The sink's periodic work (a link's heartbeat, a command held at its rate), done now;
@@ -313,6 +315,27 @@ mod tests {
         let mut d = driver();
         let behind = T0 - 3_600_000 * MS;
         // Its first step cannot be judged; its second, at its pace, drives.
+        let first = setpoints(1, behind, [0.1; 3]);
+        assert!(matches!(
+            d.on_setpoints(&first, T0 + 5 * MS).unwrap(),
+            Taken::Refused(Some(_))
+        ));
+        let second = setpoints(2, behind + 200 * MS, [0.2; 3]);
+        assert!(matches!(
+            d.on_setpoints(&second, T0 + 205 * MS).unwrap(),
+            Taken::Written(_)
+        ));
+        assert_eq!(d.on_time(T0 + 804 * MS).unwrap(), None);
+        assert_eq!(d.on_time(T0 + 805 * MS).unwrap(), Some(StopCause::Deadline));
+    }
+
+    /// The fuzzer's find (target `shm_setpoints`, a stamp's clock at i64::MIN + 16): a clock so
+    /// far behind that its age overflows an i64 read as the driver's own (a panic where overflow
+    /// is checked), and its steps went stale as they arrived.
+    #[test]
+    fn a_step_from_a_clock_behind_by_more_than_an_i64_is_fresh_for_the_deadline_after_it_arrives() {
+        let mut d = driver();
+        let behind = i64::MIN + 16;
         let first = setpoints(1, behind, [0.1; 3]);
         assert!(matches!(
             d.on_setpoints(&first, T0 + 5 * MS).unwrap(),

@@ -61,6 +61,12 @@ pub enum ReadError {
         path: PathBuf,
         source: mcap::McapError,
     },
+    #[error("{}: the chunk at byte {offset} is corrupt: {reason}", path.display())]
+    Chunk {
+        path: PathBuf,
+        offset: u64,
+        reason: String,
+    },
     #[error("{}: a message on {topic} cannot be decoded: {reason}", path.display())]
     Decode {
         path: PathBuf,
@@ -129,10 +135,18 @@ impl Reader {
                 let Some(part) = self.parts.next() else {
                     return Ok(None);
                 };
-                let file = std::fs::File::open(&part).map_err(|source| ReadError::Open {
+                let open = |source| ReadError::Open {
                     path: part.clone(),
                     source,
-                })?;
+                };
+                if let Some((offset, reason)) = chunk_overrun(&part).map_err(open)? {
+                    return Err(ReadError::Chunk {
+                        path: part,
+                        offset,
+                        reason,
+                    });
+                }
+                let file = std::fs::File::open(&part).map_err(open)?;
                 let reader = mcap::io::MessageReader::new_with_options(
                     BufReader::with_capacity(1 << 20, file),
                     mcap::sans_io::LinearReaderOptions::default()
@@ -204,6 +218,122 @@ impl Iterator for Reader {
 
     fn next(&mut self) -> Option<Self::Item> {
         self.next_message().transpose()
+    }
+}
+
+const OP_FOOTER: u8 = 0x02;
+const OP_CHUNK: u8 = 0x06;
+/// A record's opcode and length.
+const RECORD_HEAD: u64 = 9;
+
+/// The first uncompressed chunk of the MCAP file at `path` whose records do not fit in it: its
+/// offset, and which record runs past its end. The `mcap` crate's streaming reader subtracts each
+/// record of an uncompressed chunk from what is left of the chunk without checking that it fits
+/// (an overflow: a panic where overflow is checked, else the bytes after the chunk read as its
+/// records), so these chunks are walked first, record heads only. What is not an MCAP file, a
+/// length beyond any file and a file cut short are left to the `mcap` reader's own errors and to
+/// the reading of a cut part: this walk then stops without a finding.
+fn chunk_overrun(path: &Path) -> std::io::Result<Option<(u64, String)>> {
+    let file = std::fs::File::open(path)?;
+    let mut file = Walk {
+        len: file.metadata()?.len(),
+        file: BufReader::with_capacity(64 << 10, file),
+        at: 0,
+    };
+    let mut magic = [0u8; 8];
+    if !file.read(&mut magic)? || magic != crate::seal::MAGIC {
+        return Ok(None);
+    }
+    let mut head = [0u8; RECORD_HEAD as usize];
+    loop {
+        let start = file.at;
+        if !file.read(&mut head)? || head[0] == OP_FOOTER {
+            return Ok(None);
+        }
+        let end = (start + RECORD_HEAD)
+            .checked_add(u64::from_le_bytes(head[1..].try_into().expect("8 bytes")));
+        if head[0] == OP_CHUNK {
+            // Start and end times, uncompressed size and CRC, then the compression's name: none
+            // is an uncompressed chunk, whose records' length follows.
+            let mut fixed = [0u8; 8 + 8 + 8 + 4 + 4];
+            let mut records_len = [0u8; 8];
+            if !file.read(&mut fixed)? {
+                return Ok(None);
+            }
+            let uncompressed = fixed[28..] == [0; 4];
+            if uncompressed && file.read(&mut records_len)? {
+                let mut left = u64::from_le_bytes(records_len);
+                while left > 0 {
+                    let here = file.at;
+                    if left < RECORD_HEAD {
+                        return Ok(Some((
+                            start,
+                            format!(
+                                "{left} bytes are left at byte {here}, less than a record's head"
+                            ),
+                        )));
+                    }
+                    if !file.read(&mut head)? {
+                        return Ok(None);
+                    }
+                    let len = u64::from_le_bytes(head[1..].try_into().expect("8 bytes"));
+                    if len > left - RECORD_HEAD {
+                        return Ok(Some((
+                            start,
+                            format!(
+                                "the record at byte {here} (opcode {:#04x}) is {len} bytes long; \
+                                 the chunk has {} left",
+                                head[0],
+                                left - RECORD_HEAD
+                            ),
+                        )));
+                    }
+                    left -= RECORD_HEAD + len;
+                    if !file.skip_to((here + RECORD_HEAD).checked_add(len))? {
+                        return Ok(None);
+                    }
+                }
+            }
+        }
+        if !file.skip_to(end)? {
+            return Ok(None);
+        }
+    }
+}
+
+/// A file read forward, knowing where it stands.
+struct Walk {
+    file: BufReader<std::fs::File>,
+    len: u64,
+    at: u64,
+}
+
+impl Walk {
+    /// Fills `buf`; false at the file's end.
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<bool> {
+        use std::io::Read;
+        match self.file.read_exact(buf) {
+            Ok(()) => {
+                self.at += buf.len() as u64;
+                Ok(true)
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => Ok(false),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Moves forward to `to`; false when it is behind or past the file's end (`None`: past `u64`).
+    fn skip_to(&mut self, to: Option<u64>) -> std::io::Result<bool> {
+        let Some(by) = to
+            .filter(|&to| to <= self.len)
+            .and_then(|to| to.checked_sub(self.at))
+            .and_then(|by| i64::try_from(by).ok())
+        else {
+            return Ok(false);
+        };
+        self.file.seek_relative(by)?;
+        self.at += by as u64;
+        Ok(true)
     }
 }
 
