@@ -322,8 +322,12 @@ fn run(args: Args) -> Result<ExitCode> {
             let State::Running { child, since } = &mut s.state else {
                 continue;
             };
+            // A service whose end ends the run (the monitor: it counts the run's episodes) is not
+            // replaced for a silent heartbeat (a loaded machine can hold it past two deadlines while
+            // it writes): its successor would count from nothing and the run would never end.
+            let replace = s.cmd.restart && !stop_when.contains(&s.cmd.name);
             let Some(status) = child.try_status().or_else(|| {
-                stuck(&watch.pulse(i), *since, &iox, child.started_pid(), s.cmd.restart).map(
+                stuck(&watch.pulse(i), *since, &iox, child.started_pid(), replace).map(
                     |silent| {
                         tracing::warn!(service = %s.cmd.name, silent_ms = silent.as_millis() as u64, "alive but its heartbeat is silent: killing it");
                         child.kill()

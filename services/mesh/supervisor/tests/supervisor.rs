@@ -11,7 +11,10 @@ const T: Duration = Duration::from_secs(30);
 fn restarting_mesh(dir: &Path) -> std::path::PathBuf {
     let text = std::fs::read_to_string(testkit::config_dir().join("sim-mesh.toml"))
         .unwrap()
-        .replace("stop_when = [\"simulator\", \"monitor\"]", "stop_when = []")
+        .replace(
+            "stop_when = [\"simulator\", \"monitor\"]",
+            "stop_when = [\"monitor\"]",
+        )
         .replace("enabled = false", "enabled = true");
     let path = dir.join("mesh.toml");
     std::fs::write(&path, text).unwrap();
@@ -131,6 +134,10 @@ fn a_stopped_service_misses_its_heartbeat_and_is_killed_and_restarted() {
     let before = probe
         .wait_for(&setpoints, T, |s| s.stamp.seq > 20)
         .expect("the mesh runs");
+    // The monitor, whose end ends the run, stopped as long: silent, but never replaced.
+    let monitor = supervisor
+        .signal_service("monitor", libc::SIGSTOP)
+        .expect("the monitor is one of the supervisor's children");
     let stopped = supervisor
         .signal_service("perception", libc::SIGSTOP)
         .expect("perception is one of the supervisor's children");
@@ -155,6 +162,14 @@ fn a_stopped_service_misses_its_heartbeat_and_is_killed_and_restarted() {
     // the new process for a while: 1 s of margin.
     assert!(back < Duration::from_secs(2), "restarted after {back:?}");
     assert!(!alive(stopped), "the stuck process was killed");
+    assert!(
+        alive(monitor) && supervisor.service("monitor") == Some(monitor),
+        "the silent monitor was replaced:\n{}",
+        supervisor.log()
+    );
+    supervisor
+        .signal_service("monitor", libc::SIGCONT)
+        .expect("the monitor goes on");
     assert_ne!(supervisor.service("perception"), Some(stopped));
     let log = supervisor.log();
     assert!(
