@@ -408,13 +408,7 @@ impl Behaviour {
                     restored = restore.map(|b| b.trial),
                     "evaluation: the pair costs {dof} more than the simulation policies did, beyond the tolerance; not a candidate for the best, the best pair's policy is restored"
                 );
-                match restore {
-                    Some(best) => {
-                        self.agent.restore(best.gain);
-                        true
-                    }
-                    None => false,
-                }
+                self.restore_best(restore)
             }
             Verdict::Failed { best } => {
                 let lost = self.agent.safety().evaluation_lost;
@@ -427,15 +421,14 @@ impl Behaviour {
                     best = best.map(|b| b.evaluated),
                     "evaluation: the cable was lost; the policy is not a candidate for the best"
                 );
-                match best {
-                    Some(best) => {
-                        self.agent.restore(best.gain);
-                        true
-                    }
-                    None => false,
-                }
+                self.restore_best(best)
             }
         }
+    }
+
+    /// Restores `best`'s policy, if there is one to restore; whether it did.
+    fn restore_best(&mut self, best: Option<learning::BestPolicy>) -> bool {
+        best.map(|b| self.agent.restore(b.gain)).is_some()
     }
 
     /// The policy in force failed (`cause`: the cable was lost, or the position left the safety
