@@ -40,8 +40,8 @@
 //! (one best, whatever the order of judging), and a DOF counts by its relative change, not by the
 //! size of its cost (sway's cost with images is many times yaw's). A change that costs one DOF is
 //! not bought with the other's gain, however large: with images, a sway policy learned on the twin
-//! can raise yaw's cost under yaw's simulation policy by more than half (the DOFs couple through the
-//! image and the thrusters; the true state's cost rises as much as the observed one), and a sum of
+//! can raise yaw's cost under yaw's simulation policy by more than half (the DOFs couple: the
+//! true state's cost rises as much as the observed one, so it is not perception), and a sum of
 //! the two ratios takes such a pair as better. [`worse_than_start`] refuses it: each DOF must stay
 //! within the tolerance of its cost under the simulation policies.
 //!
