@@ -394,8 +394,7 @@ impl Behaviour {
                     best_trial = best.trial,
                     "evaluation: the pair is worse than the best pair beyond the tolerance; the best pair's policy is restored"
                 );
-                self.agent.restore(best.gain);
-                true
+                self.restore_best(Some(best))
             }
             Verdict::WorseThanStart { dof, restore } => {
                 tracing::warn!(
@@ -406,7 +405,7 @@ impl Behaviour {
                     ?cost,
                     worse = %dof,
                     restored = restore.map(|b| b.trial),
-                    "evaluation: the pair costs {dof} more than the simulation policies did, beyond the tolerance; not a candidate for the best, the best pair's policy is restored"
+                    "evaluation: the pair costs {dof} more than the simulation policies did, beyond the tolerance; not a candidate for the best (the best pair's policy restored where rollback is on)"
                 );
                 self.restore_best(restore)
             }
