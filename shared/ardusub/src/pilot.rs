@@ -7,8 +7,8 @@
 //! microseconds, held within 1100..1900, and MANUAL mode passes the pulse's fraction of its
 //! 400 us half-range to the motor mixer as that axis's thrust: a full axis gives `gain` of the
 //! axis's full thrust. Yaw in MANUAL is further scaled by ACRO_YAW_P / 4.5 (1 at its default). So a
-//! DOF command f is sent as f / reach x 1000, where reach is what a full axis gives, and f is
-//! reachable only up to the reach: beyond it the axis is clipped. z is heave (0..1000, 500
+//! DOF command f is sent as f / reach x 1000 (computed as `model::pilot` computes it), where reach
+//! is what a full axis gives, and f is reachable only up to the reach: beyond it the axis is clipped. z is heave (0..1000, 500
 //! neutral): the cable tracker does not use it.
 
 use mavlink::dialects::ardupilotmega::{MANUAL_CONTROL_DATA, MavMessage};
@@ -26,35 +26,59 @@ pub struct Axes {
 /// Heave's neutral: the middle of its 0..1000.
 pub const Z_NEUTRAL: i16 = 500;
 
-/// What a full axis (1000) gives, as a fraction of that axis's full thrust.
+/// One axis's scale: a DOF command f is sent as `f x fraction x 1000 / gain`, rounded, within
+/// +-1000 (`model::pilot::axis`, the very arithmetic of the twin's own conversion, so that both
+/// round alike), so a full axis gives `gain / fraction` of the command.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Reach {
-    pub surge: f64,
-    pub sway: f64,
-    pub yaw: f64,
+pub struct AxisScale {
+    pub fraction: f64,
+    pub gain: f64,
 }
 
-impl Reach {
-    /// ArduSub's pilot gain on every axis, yaw scaled by `yaw_scale` (MANUAL's ACRO_YAW_P / 4.5).
-    pub fn new(gain: f64, yaw_scale: f64) -> Self {
-        Reach {
-            surge: gain,
-            sway: gain,
-            yaw: gain * yaw_scale,
-        }
+impl AxisScale {
+    /// The command a full axis gives.
+    pub fn full(&self) -> f64 {
+        self.gain / self.fraction
+    }
+
+    fn axis(&self, command: f64) -> i16 {
+        model::pilot::axis(command, self.fraction, self.gain)
     }
 }
 
+/// What a full axis (1000) gives, per DOF.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reach {
+    pub surge: AxisScale,
+    pub sway: AxisScale,
+    pub yaw: AxisScale,
+}
+
 impl Reach {
+    /// ArduSub's pilot gain on every axis, yaw scaled by `yaw_scale` (MANUAL's ACRO_YAW_P / 4.5):
+    /// a command is that fraction of the axis's full thrust.
+    pub fn new(gain: f64, yaw_scale: f64) -> Self {
+        let whole = |gain| AxisScale {
+            fraction: 1.0,
+            gain,
+        };
+        Reach {
+            surge: whole(gain),
+            sway: whole(gain),
+            yaw: whole(gain * yaw_scale),
+        }
+    }
+
     /// Under the scenario's `[pilot]`: a full axis gives `gain / fraction` of the stack's command
     /// on each DOF, so that a command is sent as `command x fraction x 1000 / gain`, the axis step
     /// one's model assumes (`model::pilot`). In the stabilised modes the yaw axis is then a rate,
     /// as the model's yaw is.
     pub fn of_pilot(gain: f64, fractions: &config::PilotFractions) -> Self {
+        let of = |fraction| AxisScale { fraction, gain };
         Reach {
-            surge: gain / fractions.surge,
-            sway: gain / fractions.sway,
-            yaw: gain / fractions.yaw,
+            surge: of(fractions.surge),
+            sway: of(fractions.sway),
+            yaw: of(fractions.yaw),
         }
     }
 }
@@ -71,7 +95,8 @@ pub struct Clipped {
 /// `forces` as axes with `reach`; the first DOF clipped, if any.
 pub fn axes(forces: &Forces, reach: &Reach) -> (Axes, Option<Clipped>) {
     let mut clipped = None;
-    let mut axis = |dof: &'static str, f: f64, reach: f64| {
+    let mut axis = |dof: &'static str, f: f64, scale: AxisScale| {
+        let reach = scale.full();
         // Half a step of slack: a command that rounds to the full axis is not clipped.
         if f.abs() > reach + 0.5e-3 {
             clipped.get_or_insert(Clipped {
@@ -80,7 +105,7 @@ pub fn axes(forces: &Forces, reach: &Reach) -> (Axes, Option<Clipped>) {
                 reach,
             });
         }
-        (f / reach * 1000.0).round().clamp(-1000.0, 1000.0) as i16
+        scale.axis(f)
     };
     let a = Axes {
         x: axis("surge", forces.surge, reach.surge),
@@ -93,9 +118,9 @@ pub fn axes(forces: &Forces, reach: &Reach) -> (Axes, Option<Clipped>) {
 /// The forces `axes` command with `reach` (what the far side reads back).
 pub fn forces(axes: &Axes, reach: &Reach) -> Forces {
     Forces {
-        surge: f64::from(axes.x) / 1000.0 * reach.surge,
-        sway: f64::from(axes.y) / 1000.0 * reach.sway,
-        yaw: f64::from(axes.r) / 1000.0 * reach.yaw,
+        surge: f64::from(axes.x) / 1000.0 * reach.surge.full(),
+        sway: f64::from(axes.y) / 1000.0 * reach.sway.full(),
+        yaw: f64::from(axes.r) / 1000.0 * reach.yaw.full(),
     }
 }
 

@@ -493,6 +493,23 @@ mod tests {
         assert_eq!(t, want);
     }
 
+    /// The BlueROV2's gap-off twin keeps its twin's trials and stand-in ArduSub: only the gap goes.
+    #[test]
+    fn the_bluerov2_ideal_twin_is_its_twin_with_the_gap_off_and_the_simulators_images() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/bluerov2");
+        let t: TwinParams = crate::load(&dir.join("twin-ideal.toml")).unwrap();
+        let twin: TwinParams = crate::load(&dir.join("twin.toml")).unwrap();
+        let scenario: crate::Scenario = crate::load(&dir.join("scenario.toml")).unwrap();
+        let want = TwinParams {
+            trials: twin.trials.clone(),
+            render: scenario.render,
+            autopilot: twin.autopilot.clone(),
+            ..TwinParams::ideal()
+        };
+        assert!(want.autopilot.is_some());
+        assert_eq!(t, want);
+    }
+
     #[test]
     fn the_default_twin_is_responsive_and_late_and_the_mild_one_is_neither() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");

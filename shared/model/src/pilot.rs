@@ -41,8 +41,9 @@ impl Axes {
 }
 
 /// One DOF's axis: `command x fraction x 1000 / gain`, rounded, within +-1000 (a command that is
-/// not finite is 0, as every command is).
-fn axis(command: f64, fraction: f64, gain: f64) -> i16 {
+/// not finite is 0, as every command is). The MAVLink companion sends its axes with this very
+/// function, so that the twin's conversion and the wire's round alike.
+pub fn axis(command: f64, fraction: f64, gain: f64) -> i16 {
     let c = crate::bounds::unit(command).0;
     (c * fraction * FULL_AXIS / gain)
         .round()
