@@ -818,6 +818,7 @@ mod tests {
     use super::*;
     use crate::autopilot::tests::heartbeat;
     use crate::params::*;
+    use crate::pilot::Z_NEUTRAL;
     use crate::spec::Mode;
     use mavlink::dialects::ardupilotmega::{
         COMMAND_ACK_DATA, MavSeverity, NAMED_VALUE_FLOAT_DATA, PARAM_VALUE_DATA, STATUSTEXT_DATA,
@@ -1218,6 +1219,7 @@ mod tests {
             Axes {
                 x: 400,
                 y: -200,
+                z: Z_NEUTRAL,
                 r: 100
             }
         );

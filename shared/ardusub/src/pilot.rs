@@ -15,16 +15,8 @@ use mavlink::dialects::ardupilotmega::{MANUAL_CONTROL_DATA, MavMessage};
 use model::Forces;
 use std::time::{Duration, Instant};
 
-/// The MANUAL_CONTROL axes the stack drives.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Axes {
-    pub x: i16,
-    pub y: i16,
-    pub r: i16,
-}
-
-/// Heave's neutral: the middle of its 0..1000.
-pub const Z_NEUTRAL: i16 = 500;
+/// MANUAL_CONTROL's axes, the twin's and the companion's one type; heave (z) stays at its neutral.
+pub use model::pilot::{Axes, Z_NEUTRAL};
 
 /// One axis's scale: a DOF command f is sent as `f x fraction x 1000 / gain`, rounded, within
 /// +-1000 (`model::pilot::axis`, the very arithmetic of the twin's own conversion, so that both
@@ -110,6 +102,7 @@ pub fn axes(forces: &Forces, reach: &Reach) -> (Axes, Option<Clipped>) {
     let a = Axes {
         x: axis("surge", forces.surge, reach.surge),
         y: axis("sway", forces.sway, reach.sway),
+        z: Z_NEUTRAL,
         r: axis("yaw", forces.yaw, reach.yaw),
     };
     (a, clipped)
@@ -129,7 +122,7 @@ pub fn manual_control(axes: &Axes, target: u8) -> MavMessage {
     MavMessage::MANUAL_CONTROL(MANUAL_CONTROL_DATA {
         x: axes.x,
         y: axes.y,
-        z: Z_NEUTRAL,
+        z: axes.z,
         r: axes.r,
         buttons: 0,
         target,
@@ -151,7 +144,7 @@ impl Pilot {
         Pilot {
             period,
             reach,
-            held: Axes::default(),
+            held: Axes::NEUTRAL,
             next: None,
         }
     }
@@ -177,7 +170,7 @@ impl Pilot {
 
     /// A stop: neutral from now; the axes to send at once.
     pub fn neutral(&mut self) -> Axes {
-        self.held = Axes::default();
+        self.held = Axes::NEUTRAL;
         self.held
     }
 
@@ -218,30 +211,50 @@ mod tests {
         let full = Reach::new(1.0, 1.0);
         assert_eq!(
             axes(&f(0.4, 0.0, 0.0), &full).0,
-            Axes { x: 400, y: 0, r: 0 }
+            Axes {
+                x: 400,
+                y: 0,
+                z: Z_NEUTRAL,
+                r: 0
+            }
         );
         assert_eq!(
             axes(&f(-0.4, 0.0, 0.0), &full).0,
             Axes {
                 x: -400,
                 y: 0,
+                z: Z_NEUTRAL,
                 r: 0
             }
         );
         // Sway to starboard is positive y; yaw clockwise seen from above is positive r.
         assert_eq!(
             axes(&f(0.0, 0.25, 0.0), &full).0,
-            Axes { x: 0, y: 250, r: 0 }
+            Axes {
+                x: 0,
+                y: 250,
+                z: Z_NEUTRAL,
+                r: 0
+            }
         );
         assert_eq!(
             axes(&f(0.0, 0.0, -0.7), &full).0,
             Axes {
                 x: 0,
                 y: 0,
+                z: Z_NEUTRAL,
                 r: -700
             }
         );
-        match manual_control(&Axes { x: 1, y: -2, r: 3 }, 7) {
+        match manual_control(
+            &Axes {
+                x: 1,
+                y: -2,
+                z: Z_NEUTRAL,
+                r: 3,
+            },
+            7,
+        ) {
             MavMessage::MANUAL_CONTROL(m) => {
                 assert_eq!(
                     (m.x, m.y, m.z, m.r, m.buttons, m.target),
@@ -293,6 +306,7 @@ mod tests {
             Axes {
                 x: 600,
                 y: -1000,
+                z: Z_NEUTRAL,
                 r: 0
             }
         );
@@ -320,7 +334,7 @@ mod tests {
         let t0 = Instant::now();
         let ms = Duration::from_millis(1);
         let mut p = Pilot::new(50 * ms, Reach::new(1.0, 1.0));
-        assert_eq!(p.due(t0), Some(Axes::default()), "neutral until commanded");
+        assert_eq!(p.due(t0), Some(Axes::NEUTRAL), "neutral until commanded");
         assert_eq!(p.due(t0 + 49 * ms), None);
         let (a, _) = p.command(&f(0.2, 0.0, 0.1));
         assert_eq!(
@@ -328,6 +342,7 @@ mod tests {
             Axes {
                 x: 200,
                 y: 0,
+                z: Z_NEUTRAL,
                 r: 100
             }
         );
@@ -336,10 +351,10 @@ mod tests {
         assert_eq!(p.due(t0 + 50 * ms), Some(a));
         assert_eq!(p.due(t0 + 101 * ms), Some(a));
         assert_eq!(p.next_due(), Some(t0 + 150 * ms), "on the grid");
-        assert_eq!(p.neutral(), Axes::default());
-        assert_eq!(p.due(t0 + 150 * ms), Some(Axes::default()));
+        assert_eq!(p.neutral(), Axes::NEUTRAL);
+        assert_eq!(p.due(t0 + 150 * ms), Some(Axes::NEUTRAL));
         // Half a second unscheduled: one send, then the grid restarts from now.
-        assert_eq!(p.due(t0 + 700 * ms), Some(Axes::default()));
+        assert_eq!(p.due(t0 + 700 * ms), Some(Axes::NEUTRAL));
         assert_eq!(p.due(t0 + 701 * ms), None);
         assert_eq!(p.next_due(), Some(t0 + 750 * ms));
     }

@@ -297,6 +297,7 @@ impl SinkRig for ArduSubRig {
                     stick = Some(Axes {
                         x: mc.x,
                         y: mc.y,
+                        z: mc.z,
                         r: mc.r,
                     });
                 }
