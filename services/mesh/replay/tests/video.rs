@@ -13,9 +13,10 @@
 //!   the record keeps), and replay's frames of a record that keeps only every 4th image are the
 //!   frames of the dive; the same record written again without one unit keeps the images of the
 //!   frames up to the next keyframe, and replays every frame of the dive;
-//! - a record that keeps no image beside its stream (`--video-frame-every 0`) holds none, and
-//!   replay's frames of it are the frames of the dive, every one from the stream;
-//! - a recorder started in the middle of the dive, between two keyframes, keeps the images of the
+//! - in a second dive, a record that keeps no image beside its stream (`--video-frame-every 0`)
+//!   holds none (but of a frame the twin sent again: which copy the camera published, the stream
+//!   does not say), and replay's frames of it are the frames of the dive, from the stream;
+//! - a recorder started in the middle of that dive, between two keyframes, keeps the images of the
 //!   frames before the first keyframe it records (its stream cannot give them), none after, and
 //!   replay's frames of its record are those of the dive from where it started.
 //!
