@@ -152,7 +152,8 @@ macro_rules! flight_record {
         #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
         pub enum Channel {
             $($($(#[$doc])* $channel,)+)+
-            /// The camera's images, `foxglove.RawImage` `mono8`, decimated by `--frame-every`.
+            /// The camera's images, `foxglove.RawImage` `mono8`, decimated by `--frame-every` (and
+            /// `--video-frame-every` where the compressed stream gives the frame).
             Image,
             /// Perception's estimate drawn over the image (`foxglove.ImageAnnotations`), for the
             /// frames whose image is recorded.

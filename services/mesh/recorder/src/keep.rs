@@ -10,9 +10,15 @@
 //!   happened in the dive's timeline; its wall clock is in the message.
 //! - **Frames.** Every frame's header is written; its image only for steps `step % frame_every == 0`
 //!   (every frame by default), and perception's overlay for exactly the frames whose image was written.
-//!   Once the camera's compressed stream is recorded (its units, [`Keeper::video`]), the images
-//!   are decimated by `video_frame_every` instead: the stream holds every frame, the images a few
-//!   to look at and to check the stream's decoding against.
+//!   A frame the record's compressed stream can give (its unit recorded, [`Keeper::video`], and
+//!   decodable from the record, [`Continuity`]) has its image decimated by `video_frame_every`
+//!   instead (0: no image at all): the stream holds those frames, the images a few to look at and
+//!   to check the stream's decoding against. So a frame the stream cannot give (before the
+//!   stream's first keyframe in the record, after units missing from it, after the camera's decoder
+//!   started afresh) keeps following `frame_every`, and replay has its image. So does a frame with
+//!   several units of its time before it (the source sent the frame again, and the camera
+//!   published the picture of a later copy): the stream does not say which picture the camera
+//!   published.
 //! - **Video units.** Each unit once, by its number within the camera's epoch (a repeat: the same
 //!   number seen again; a restarted camera starts a new epoch).
 //! - **Holes.** A step a channel of the loop missed while another channel recorded it, and the
@@ -21,13 +27,43 @@
 //!   missed its deadline).
 
 use crate::channels::Channel;
-use messages::Stamp;
+use messages::{Stamp, VideoUnit};
 use std::collections::{BTreeMap, VecDeque};
 
 /// Steps remembered for finding holes; older ones are settled.
 const WINDOW: usize = 4096;
 /// Recent frames whose image was written (an overlay follows its image within a few steps).
 const IMAGED: usize = 64;
+/// Recent video units remembered for their frames (a frame follows its unit within the drain; the
+/// camera's topic holds 64 frames in the recorder's buffer).
+const UNITS: usize = 256;
+
+/// Whether the units of a record, fed to a decoder in their order, decode to each unit's frame as
+/// the camera's decoder did: from a keyframe on, with no unit of the camera's epoch missing since,
+/// and the camera's decoder not started afresh since (`VideoUnit::DECODER_RESTARTED`). A unit
+/// after one missing (the recorder's buffer overflowed, the recorder restarted, the camera dropped
+/// a unit too large), the units before the record's first keyframe, and those after a restarted
+/// camera or decoder, up to the next keyframe, are not: the camera's decoder held what the
+/// record's does not. The recorder keeps those frames' images; replay takes them from the images.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Continuity {
+    /// The last unit seen: its epoch and number.
+    last: Option<(u32, u64)>,
+    intact: bool,
+}
+
+impl Continuity {
+    /// Whether `unit`, the next in the record, decodes as it did on the vehicle.
+    pub fn next(&mut self, unit: &VideoUnit) -> bool {
+        let follows = self
+            .last
+            .is_some_and(|(e, n)| e == unit.epoch && n.checked_add(1) == Some(unit.number));
+        self.intact = unit.is_keyframe()
+            || (self.intact && follows && unit.flags & VideoUnit::DECODER_RESTARTED == 0);
+        self.last = Some((unit.epoch, unit.number));
+        self.intact
+    }
+}
 
 /// What to do with one message.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -56,7 +92,7 @@ pub struct Counts {
     pub written: u64,
     pub repeats: u64,
     pub holes: u64,
-    /// Images not written because of `frame_every`.
+    /// Images not written because of the decimation (`frame_every`, `video_frame_every`).
     pub decimated: u64,
 }
 
@@ -64,10 +100,13 @@ pub struct Counts {
 #[derive(Debug)]
 pub struct Keeper {
     frame_every: u32,
-    /// The images' decimation once a video unit is recorded.
+    /// The images' decimation for the frames the stream gives (0: none kept).
     video_frame_every: u32,
     /// The last video unit written: its camera's epoch and number.
     last_unit: Option<(u32, u64)>,
+    continuity: Continuity,
+    /// Recent units written: their frame (epoch, time) and whether the record decodes it.
+    units: VecDeque<((u32, u64), bool)>,
     last_seq: BTreeMap<Channel, u64>,
     /// Recent steps: which per-step channels recorded each.
     seen: BTreeMap<u64, u64>,
@@ -93,6 +132,8 @@ impl Keeper {
             frame_every: frame_every.max(1),
             video_frame_every: frame_every.max(1),
             last_unit: None,
+            continuity: Continuity::default(),
+            units: VecDeque::new(),
             last_seq: BTreeMap::new(),
             seen: BTreeMap::new(),
             imaged: VecDeque::new(),
@@ -101,32 +142,40 @@ impl Keeper {
         }
     }
 
-    /// Keeps the image of every `n`-th step once the compressed stream is recorded.
+    /// Keeps the image of every `n`-th step of the frames the recorded stream gives (0: none).
     pub fn with_video_frame_every(mut self, n: u32) -> Self {
-        self.video_frame_every = n.max(1);
+        self.video_frame_every = n;
         self
     }
 
-    /// The images' decimation now.
-    pub fn frame_every(&self) -> u32 {
-        if self.last_unit.is_some() {
-            self.video_frame_every
-        } else {
-            self.frame_every
+    /// The decimation of the image of the frame of `stamp` (0: none kept): `video_frame_every` where
+    /// the record's stream gives the frame, else `frame_every`.
+    pub fn frame_every(&self, stamp: &Stamp) -> u32 {
+        let frame = (stamp.epoch, stamp.time_ns);
+        let mut units = self.units.iter().filter(|(f, _)| *f == frame);
+        match (units.next(), units.next()) {
+            (Some((_, true)), None) => self.video_frame_every,
+            _ => self.frame_every,
         }
     }
 
-    /// Whether to write the video unit `number` of the camera's `epoch`: not when it was
-    /// written before (the recorder's buffer gave it twice).
-    pub fn video(&mut self, epoch: u32, number: u64) -> bool {
+    /// Whether to write the video unit `unit`: not when it was written before (the recorder's
+    /// buffer gave it twice).
+    pub fn video(&mut self, unit: &VideoUnit) -> bool {
         if let Some((e, n)) = self.last_unit
-            && e == epoch
-            && number <= n
+            && e == unit.epoch
+            && unit.number <= n
         {
             self.count(Channel::Video).repeats += 1;
             return false;
         }
-        self.last_unit = Some((epoch, number));
+        self.last_unit = Some((unit.epoch, unit.number));
+        let decodable = self.continuity.next(unit);
+        self.units
+            .push_back(((unit.epoch, unit.time_ns), decodable));
+        if self.units.len() > UNITS {
+            self.units.pop_front();
+        }
         self.count(Channel::Video).written += 1;
         true
     }
@@ -165,7 +214,8 @@ impl Keeper {
         if !has_image {
             return false;
         }
-        if !stamp.step.is_multiple_of(self.frame_every()) {
+        let every = self.frame_every(stamp);
+        if every == 0 || !stamp.step.is_multiple_of(every) {
             self.count(Channel::Image).decimated += 1;
             return false;
         }
@@ -323,28 +373,139 @@ mod tests {
         assert_eq!(k.counts()[&Channel::Annotation].written, 2);
     }
 
-    /// With the compressed stream recorded, the images thin out to `video_frame_every`; a unit
-    /// is kept once per camera epoch and number.
+    /// A unit of the camera's `epoch` for the frame of `step` (at `stamp(100 + step, step)`'s time).
+    fn unit(epoch: u32, number: u64, step: u32, flags: u32) -> VideoUnit {
+        VideoUnit {
+            number,
+            time_ns: stamp(100 + step as u64, step).time_ns,
+            epoch,
+            flags,
+            ..Default::default()
+        }
+    }
+
+    /// The camera's frame of `step` in its `epoch`: its header written, and whether its image is.
+    fn image(k: &mut Keeper, epoch: u32, step: u32) -> bool {
+        let s = stamp(100 + step as u64, step).timed(epoch, 1);
+        k.stamped(Channel::FrameHeader, &s);
+        k.image(&s, true)
+    }
+
+    const KEY: u32 = VideoUnit::KEYFRAME;
+
+    /// The frames the recorded stream gives have their images thinned to `video_frame_every`,
+    /// the others keep `frame_every`; a unit is kept once per camera epoch and number.
     #[test]
-    fn with_video_the_images_are_decimated_further() {
+    fn the_images_of_frames_the_stream_gives_are_decimated_further() {
         let mut k = Keeper::new(1).with_video_frame_every(4);
-        let image = |k: &mut Keeper, step: u32| {
-            let s = stamp(100 + step as u64, step);
-            k.stamped(Channel::FrameHeader, &s);
-            k.image(&s, true)
-        };
         assert!(
-            (0..3).all(|step| image(&mut k, step)),
+            (0..3).all(|step| image(&mut k, 9, step)),
             "every image before the stream"
         );
-        assert!(k.video(9, 1) && k.video(9, 2));
-        assert!(!k.video(9, 2), "the same unit again");
-        assert!(k.video(5, 1), "a restarted camera's first unit");
-        let kept: Vec<u32> = (3..12).filter(|&step| image(&mut k, step)).collect();
+        let mut kept = Vec::new();
+        for step in 3..12 {
+            let flags = if step == 3 { KEY } else { 0 };
+            assert!(k.video(&unit(9, step as u64, step, flags)));
+            if image(&mut k, 9, step) {
+                kept.push(step);
+            }
+        }
         assert_eq!(kept, vec![4, 8]);
-        assert_eq!(k.frame_every(), 4);
+        assert!(!k.video(&unit(9, 11, 11, 0)), "the same unit again");
+        assert!(
+            image(&mut k, 8, 12),
+            "a frame of another epoch, its unit not recorded"
+        );
         let v = k.counts()[&Channel::Video];
-        assert_eq!((v.written, v.repeats), (3, 1));
+        assert_eq!((v.written, v.repeats), (9, 1));
+        let c = k.counts()[&Channel::Image];
+        assert_eq!((c.written, c.decimated), (6, 7));
+    }
+
+    /// `video_frame_every` 0: no image of a frame the stream gives; the images of the frames it
+    /// cannot give (before its first keyframe, after a unit missing, after the camera's decoder
+    /// started afresh, a restarted camera's first units) follow `frame_every`.
+    #[test]
+    fn with_video_frame_every_0_only_the_frames_the_stream_cannot_give_keep_images() {
+        let mut k = Keeper::new(2).with_video_frame_every(0);
+        let restarted = VideoUnit::DECODER_RESTARTED | VideoUnit::DAMAGED;
+        // (step, epoch, the unit's number and flags; None: no unit recorded)
+        let dive = [
+            (0, 9, None),
+            (1, 9, None),
+            // The recorder joined the stream between keyframes.
+            (2, 9, Some((5, 0))),
+            (3, 9, Some((6, 0))),
+            (4, 9, Some((7, KEY))),
+            (5, 9, Some((8, 0))),
+            (6, 9, Some((9, 0))),
+            // Unit 10 missing from the record.
+            (8, 9, Some((11, 0))),
+            (10, 9, Some((12, KEY))),
+            // The camera's decoder started afresh.
+            (12, 9, Some((13, restarted))),
+            (14, 9, Some((14, 0))),
+            (16, 9, Some((15, KEY))),
+            // A restarted camera: a new epoch, its first unit no keyframe.
+            (18, 3, Some((1, 0))),
+            (20, 3, Some((2, KEY))),
+            (22, 3, Some((3, 0))),
+            // A frame whose unit is not recorded (the recorder's buffer overflowed).
+            (24, 3, None),
+        ];
+        let mut kept = Vec::new();
+        for (step, epoch, u) in dive {
+            if let Some((number, flags)) = u {
+                k.video(&unit(epoch, number, step, flags));
+            }
+            if image(&mut k, epoch, step) {
+                kept.push(step);
+            }
+        }
+        // Before the stream and where it cannot give the frame, every 2nd step.
+        assert_eq!(kept, vec![0, 2, 8, 12, 14, 18, 24]);
+        // The source sent a frame again: two units of its time before it.
+        k.video(&unit(3, 5, 28, KEY));
+        k.video(&unit(3, 6, 28, 0));
+        assert!(
+            image(&mut k, 3, 28),
+            "which of two pictures the camera published"
+        );
+        k.video(&unit(3, 7, 30, 0));
+        assert!(!image(&mut k, 3, 30));
+    }
+
+    #[test]
+    fn the_record_decodes_a_unit_from_a_keyframe_on_with_none_missing() {
+        let mut c = Continuity::default();
+        let u = |epoch, number, flags| VideoUnit {
+            number,
+            epoch,
+            flags,
+            ..Default::default()
+        };
+        let seen: Vec<bool> = [
+            u(1, 4, 0),
+            u(1, 5, KEY),
+            u(1, 6, VideoUnit::DAMAGED),
+            u(1, 8, 0),
+            u(1, 9, KEY),
+            u(1, 10, VideoUnit::DECODER_RESTARTED),
+            u(1, 11, 0),
+            u(1, 12, KEY | VideoUnit::DECODER_RESTARTED),
+            u(2, 13, 0),
+            u(2, 14, KEY),
+            u(2, 15, 0),
+        ]
+        .iter()
+        .map(|x| c.next(x))
+        .collect();
+        assert_eq!(
+            seen,
+            [
+                false, true, true, false, true, false, false, true, false, true, true
+            ]
+        );
     }
 
     #[test]

@@ -30,8 +30,9 @@ struct Args {
     /// everything else are kept at every step.
     #[arg(long, default_value_t = 1, value_name = "N")]
     frame_every: u32,
-    /// Once the camera's compressed stream is recorded (`/camera_video`: it holds every frame),
-    /// keep the image of every N-th step only.
+    /// Of the frames the recorded compressed stream gives (`/camera_video`), keep the image of
+    /// every N-th step only; 0: none (the stream alone holds them). The frames it cannot give
+    /// (before its first keyframe, after a unit missing) follow --frame-every.
     #[arg(long, default_value_t = 25, value_name = "N")]
     video_frame_every: u32,
     /// Start a new part when the current one reaches this size.
@@ -82,17 +83,25 @@ impl Taps {
     /// Everything unread, into the record: the video units, the frames (a step's estimate is drawn
     /// over its frame's image once that is written), then the other topics in the table's order.
     fn drain(&self, rec: &mut FlightRecorder) -> anyhow::Result<()> {
-        // The units before the frames they decode to: the images' decimation follows the stream.
-        while self
-            .video
-            .receive_with(|unit, bytes| rec.video(unit, bytes))?
-            .is_some()
-        {}
-        while self
-            .frames
-            .receive_with(|header, image| rec.frame(header, image))?
-            .is_some()
-        {}
+        // The units before the frames they decode to: whether a frame's image is kept depends on
+        // its unit. The camera publishes a frame after its unit, so the units are read again
+        // before each frame: a unit that came after the first read is in by then.
+        let units = |rec: &mut FlightRecorder| -> anyhow::Result<()> {
+            while self
+                .video
+                .receive_with(|unit, bytes| rec.video(unit, bytes))?
+                .is_some()
+            {}
+            Ok(())
+        };
+        units(rec)?;
+        while let Some(read) = self.frames.receive_with(|header, image| {
+            units(rec)?;
+            rec.frame(header, image);
+            anyhow::Ok(())
+        })? {
+            read?;
+        }
         for tap in &self.plain {
             tap.drain(rec)?;
         }

@@ -35,8 +35,8 @@ pub struct Options {
     pub zstd_level: u32,
     /// Keep the image of every `frame_every`-th step (see `crate::keep`).
     pub frame_every: u32,
-    /// Keep the image of every `video_frame_every`-th step once the camera's compressed stream
-    /// is recorded (it holds every frame).
+    /// Keep the image of every `video_frame_every`-th step of the frames the record's compressed
+    /// stream gives (0: none; see `crate::keep`).
     pub video_frame_every: u32,
 }
 
@@ -174,14 +174,10 @@ impl FlightRecorder {
         opts: Options,
         metadata: BTreeMap<String, String>,
     ) -> Result<FlightRecorder, RecordError> {
-        if opts.frame_every == 0
-            || opts.video_frame_every == 0
-            || opts.rotate_bytes == 0
-            || opts.chunk_bytes == 0
-        {
+        if opts.frame_every == 0 || opts.rotate_bytes == 0 || opts.chunk_bytes == 0 {
             return Err(RecordError::Option(format!(
-                "frame_every ({}), video_frame_every ({}), rotate_bytes ({}) and chunk_bytes ({}) must be at least 1",
-                opts.frame_every, opts.video_frame_every, opts.rotate_bytes, opts.chunk_bytes
+                "frame_every ({}), rotate_bytes ({}) and chunk_bytes ({}) must be at least 1",
+                opts.frame_every, opts.rotate_bytes, opts.chunk_bytes
             )));
         }
         let ctx = Context::new();
@@ -392,7 +388,7 @@ impl FlightRecorder {
     /// A unit of the camera's compressed stream: its header as JSON and the unit as
     /// `foxglove.CompressedVideo`, both at its frame's time, once.
     pub fn video(&mut self, unit: &VideoUnit, bytes: &[u8]) {
-        if !self.keeper.video(unit.epoch, unit.number) {
+        if !self.keeper.video(unit) {
             return;
         }
         self.buf.clear();

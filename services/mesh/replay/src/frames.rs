@@ -31,6 +31,16 @@ pub enum ReplayError {
         step: u32,
     },
     #[error(
+        "{}: the frame of step seq {seq} (episode {episode}, step {step}) has no image, and the record's stream gives no picture of it (its unit is not in the record)",
+        path.display()
+    )]
+    NotInStream {
+        path: PathBuf,
+        seq: u64,
+        episode: u32,
+        step: u32,
+    },
+    #[error(
         "{}: the image at {time_ns} ns follows no frame header of that time",
         path.display()
     )]
@@ -85,6 +95,9 @@ pub struct Frames {
     /// Frames taken from the stream, and of them those checked against a recorded image.
     pub from_stream: u64,
     pub checked: u64,
+    /// Frames taken from the stream though the record does not decode them as the camera did
+    /// (`video::Decoded::decodable`), for want of an image: they may differ from the dive's.
+    pub undecodable: u64,
 }
 
 impl Frames {
@@ -101,6 +114,7 @@ impl Frames {
             video: None,
             from_stream: 0,
             checked: 0,
+            undecodable: 0,
         })
     }
 
@@ -154,7 +168,7 @@ impl Frames {
         Ok(Frame { header, image })
     }
 
-    /// The frame's image from the record's stream where it has one (checked against the image
+    /// The frame's image from the record's stream where it gives it (checked against the image
     /// recorded, if any), else the image recorded.
     #[cfg(feature = "video")]
     fn image_of_stream(
@@ -173,25 +187,49 @@ impl Frames {
                 header.height,
             )?),
         };
-        let Some(decoded) = video.frame_at(header.stamp.time_ns)? else {
-            return Ok(image);
-        };
-        if let Some(recorded) = &image {
-            if recorded.data != decoded.image {
-                return Err(ReplayError::VideoDiffers {
+        let decoded = video.frame_at(header.stamp.time_ns)?;
+        let stream = video.units > 0;
+        let seq = header.stamp.seq;
+        let image = match (decoded, image) {
+            (Some(d), Some(recorded)) if !d.decodable => {
+                // The record does not decode this frame as the camera did: its image is the frame.
+                return Ok(Some(recorded));
+            }
+            (Some(d), Some(recorded)) => {
+                // Of several pictures of this time (the source sent the frame again), the image
+                // says which one the camera published.
+                if recorded.data != d.image && !d.again.contains(&recorded.data) {
+                    return Err(ReplayError::VideoDiffers {
+                        path: self.path.clone(),
+                        seq,
+                        time_ns: header.stamp.time_ns,
+                    });
+                }
+                self.checked += 1;
+                recorded.data
+            }
+            (Some(d), None) => {
+                if !d.decodable {
+                    self.undecodable += 1;
+                }
+                d.image
+            }
+            (None, None) if stream => {
+                return Err(ReplayError::NotInStream {
                     path: self.path.clone(),
-                    seq: header.stamp.seq,
-                    time_ns: header.stamp.time_ns,
+                    seq,
+                    episode: header.stamp.episode,
+                    step: header.stamp.step,
                 });
             }
-            self.checked += 1;
-        }
+            (None, recorded) => return Ok(recorded),
+        };
         self.from_stream += 1;
         Ok(Some(recorder::image::Image {
             time_ns: header.stamp.time_ns,
             width: header.width,
             height: header.height,
-            data: decoded.image,
+            data: image,
         }))
     }
 

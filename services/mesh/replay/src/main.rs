@@ -287,6 +287,7 @@ fn replay(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
     };
     let frames = plant.into_frames();
     let played_frames = frames.yielded();
+    log_stream(&frames);
     let (recorded, read) = frames.finish()?;
     let recorded = recorded.only(|s| player.played.contains(&s));
     if stopped == runtime::Stopped::Done && !want_reports(&recorded, &replayed) {
@@ -344,4 +345,28 @@ fn replay(rt: &Runtime, args: &Args) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Where the replayed frames' images came from, when the record has the camera's stream.
+fn log_stream(frames: &Frames) {
+    if frames.from_stream == 0 {
+        return;
+    }
+    tracing::info!(
+        from_stream = frames.from_stream,
+        checked = frames.checked,
+        from_images = frames.yielded().saturating_sub(frames.from_stream),
+        "frames decoded from the record's stream, checked against the images it keeps"
+    );
+    if frames.checked == 0 {
+        tracing::info!(
+            "the record keeps no image of the frames its stream gives (recorder --video-frame-every 0): no decoded frame was compared with an image; the mesh's outputs, compared with the recorded ones, are the check"
+        );
+    }
+    if frames.undecodable > 0 {
+        tracing::warn!(
+            frames = frames.undecodable,
+            "frames decoded from units the record does not decode as the camera did (a unit missing before them, or the camera's decoder started afresh) and without an image: they may differ from the dive's"
+        );
+    }
 }
