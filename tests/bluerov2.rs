@@ -319,42 +319,37 @@ fn mesh_params() -> Vec<(String, f64)> {
 fn the_two_step_job_over_mavlink_flies_what_one_process_flies() {
     use config::{Dof, Eyes, PerDof, Scenario, TwinParams};
     use records::RunRecord;
-    use runtime::process::Spawn;
     use trainer::evaluation::{evaluate, load_policies};
 
     const SEED: u64 = 2;
-    let repo = testkit::config_dir().parent().unwrap().to_owned();
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("two-step");
-    let log = tmp.path().join("two-step-learning.log");
-    let mut job = Spawn::new(repo.join("scripts/two-step-learning"))
-        .args(["--vehicle", "bluerov2", "--no-build", "--no-record"])
-        .args(["--seed", &SEED.to_string(), "--trials", "5"])
-        .args([
+    let seed = SEED.to_string();
+    system_tests::two_step_job(
+        &[
+            "--vehicle",
+            "bluerov2",
+            "--no-record",
+            "--seed",
+            &seed,
+            "--trials",
+            "5",
             "--sim-episodes",
             "30",
             "--fig5-runs",
             "2",
             "--sim-eyes",
             "ideal",
-        ])
-        .args(["--limit-generations", "1", "--limit-population", "4"])
-        .args(["--held-out", "1", "--out"])
-        .arg(&out)
-        .log(&log)
-        .die_with_parent()
-        .start()
-        .expect("starting scripts/two-step-learning");
-    let timeout = Duration::from_secs(600);
-    let status = job.wait_timeout(timeout).unwrap_or_else(|| {
-        job.kill();
-        panic!(
-            "the job did not finish within {timeout:?}\n{}",
-            job.tail(30)
-        )
-    });
-    let stdout = job.log();
-    assert!(status.success(), "{status:?}\n{stdout}");
+            "--limit-generations",
+            "1",
+            "--limit-population",
+            "4",
+            "--held-out",
+            "1",
+        ],
+        &out,
+        Duration::from_secs(600),
+    );
     let step_two_log = std::fs::read_to_string(out.join("logs/step-two.log")).unwrap();
     assert!(
         step_two_log.contains("sink=ArduSub at udpout:"),

@@ -16,7 +16,6 @@
 use config::Eyes;
 use config::{Dof, PerDof, Scenario, TwinParams};
 use records::RunRecord;
-use runtime::process::Spawn;
 use std::path::Path;
 use std::time::Duration;
 use trainer::evaluation::{evaluate, load_policies};
@@ -39,14 +38,15 @@ fn close(a: f64, b: f64) -> bool {
 
 #[test]
 fn the_two_step_job_runs_and_the_mesh_agrees_with_the_in_process_step_two() {
-    let repo = testkit::config_dir().parent().unwrap().to_owned();
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("two-step");
-    let log = tmp.path().join("two-step-learning.log");
-    let mut job = Spawn::new(repo.join("scripts/two-step-learning"))
-        .args(["--no-build", "--seed", &SEED.to_string(), "--trials"])
-        .arg(LEARNING_TRIALS.to_string())
-        .args([
+    let (seed, trials) = (SEED.to_string(), LEARNING_TRIALS.to_string());
+    let stdout = system_tests::two_step_job(
+        &[
+            "--seed",
+            &seed,
+            "--trials",
+            &trials,
             "--sim-episodes",
             "30",
             "--fig5-runs",
@@ -59,22 +59,10 @@ fn the_two_step_job_runs_and_the_mesh_agrees_with_the_in_process_step_two() {
             "4",
             "--held-out",
             "2",
-            "--out",
-        ])
-        .arg(&out)
-        .log(&log)
-        .die_with_parent()
-        .start()
-        .expect("starting scripts/two-step-learning");
-    let status = job.wait_timeout(TIMEOUT).unwrap_or_else(|| {
-        job.kill();
-        panic!(
-            "two-step-learning did not finish within {TIMEOUT:?}\n{}",
-            job.tail(30)
-        )
-    });
-    let stdout = job.log();
-    assert!(status.success(), "{status:?}\n{stdout}");
+        ],
+        &out,
+        TIMEOUT,
+    );
     let report = out.join("report/report.md");
     assert!(
         stdout.contains(&report.display().to_string()),

@@ -153,3 +153,29 @@ pub fn step_one_in(config: &Path, dir: &Path, episodes: u64, seed: u64) {
         .save(&dir.join("yaw.ckpt"))
         .unwrap();
 }
+
+/// Runs the main job, `scripts/two-step-learning --no-build ARGS --out OUT`, for at most
+/// `timeout` (then kills it and fails), fails unless it succeeded, and returns what it printed.
+pub fn two_step_job(args: &[&str], out: &Path, timeout: Duration) -> String {
+    let repo = testkit::config_dir().parent().unwrap().to_owned();
+    let log = out.with_extension("log");
+    let mut job = runtime::process::Spawn::new(repo.join("scripts/two-step-learning"))
+        .arg("--no-build")
+        .args(args.iter().copied())
+        .arg("--out")
+        .arg(out)
+        .log(&log)
+        .die_with_parent()
+        .start()
+        .expect("starting scripts/two-step-learning");
+    let status = job.wait_timeout(timeout).unwrap_or_else(|| {
+        job.kill();
+        panic!(
+            "two-step-learning did not finish within {timeout:?}\n{}",
+            job.tail(30)
+        )
+    });
+    let stdout = job.log();
+    assert!(status.success(), "{status:?}\n{stdout}");
+    stdout
+}
