@@ -42,24 +42,7 @@ fn the_two_step_job_runs_and_the_mesh_agrees_with_the_in_process_step_two() {
     let out = tmp.path().join("two-step");
     let (seed, trials) = (SEED.to_string(), LEARNING_TRIALS.to_string());
     let stdout = system_tests::two_step_job(
-        &[
-            "--seed",
-            &seed,
-            "--trials",
-            &trials,
-            "--sim-episodes",
-            "30",
-            "--fig5-runs",
-            "2",
-            "--sim-eyes",
-            "ideal",
-            "--limit-generations",
-            "1",
-            "--limit-population",
-            "4",
-            "--held-out",
-            "2",
-        ],
+        &["--seed", &seed, "--trials", &trials, "--held-out", "2"],
         &out,
         TIMEOUT,
     );

@@ -154,13 +154,30 @@ pub fn step_one_in(config: &Path, dir: &Path, episodes: u64, seed: u64) {
         .unwrap();
 }
 
-/// Runs the main job, `scripts/two-step-learning --no-build ARGS --out OUT`, for at most
-/// `timeout` (then kills it and fails), fails unless it succeeded, and returns what it printed.
+/// A short main job: step one of 30 episodes with the camera's exact line, Fig. 5 of 2 runs, a
+/// one-generation limit search of 4 candidates; enough to see that the pieces fit and agree.
+const SHORT_JOB: [&str; 10] = [
+    "--sim-episodes",
+    "30",
+    "--fig5-runs",
+    "2",
+    "--sim-eyes",
+    "ideal",
+    "--limit-generations",
+    "1",
+    "--limit-population",
+    "4",
+];
+
+/// Runs the main job short ([`SHORT_JOB`]), `scripts/two-step-learning --no-build ... ARGS --out
+/// OUT`, for at most `timeout` (then kills it and fails), fails unless it succeeded, and returns
+/// what it printed.
 pub fn two_step_job(args: &[&str], out: &Path, timeout: Duration) -> String {
     let repo = testkit::config_dir().parent().unwrap().to_owned();
     let log = out.with_extension("log");
     let mut job = runtime::process::Spawn::new(repo.join("scripts/two-step-learning"))
         .arg("--no-build")
+        .args(SHORT_JOB)
         .args(args.iter().copied())
         .arg("--out")
         .arg(out)
