@@ -315,10 +315,12 @@ pub fn rates(summary: &serde_json::Value) -> BTreeMap<String, TopicRate> {
     }
 }
 
+/// What the link adds to a step's way from the vehicle to the shore, in ms; `None` when no step
+/// arrived on shore (the report then reads back as it was written: JSON has no NaN).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Latency {
-    pub p50: f64,
-    pub p99: f64,
+    pub p50: Option<f64>,
+    pub p99: Option<f64>,
 }
 
 /// Joins the two sides' arrivals: `sent` counts the vehicle's arrivals within the shore's
@@ -332,8 +334,8 @@ pub fn link_figures(vehicle: &[Arrival], shore: &[Arrival]) -> (usize, usize, La
             vehicle.len(),
             0,
             Latency {
-                p50: f64::NAN,
-                p99: f64::NAN,
+                p50: None,
+                p99: None,
             },
         );
     };
@@ -351,9 +353,10 @@ pub fn link_figures(vehicle: &[Arrival], shore: &[Arrival]) -> (usize, usize, La
                 .map(|&v| (a.at_ns as f64 - v as f64) / 1e6)
         })
         .collect();
+    let at = |q| (!added.is_empty()).then(|| stats::percentile(added.iter().copied(), q));
     let latency = Latency {
-        p50: stats::percentile(added.iter().copied(), 0.5),
-        p99: stats::percentile(added.iter().copied(), 0.99),
+        p50: at(0.5),
+        p99: at(0.99),
     };
     (sent, shore.len(), latency)
 }
