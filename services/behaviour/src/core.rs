@@ -113,9 +113,9 @@ pub struct Behaviour {
     step_two: Option<StepTwo>,
     /// What the current trial is for (step two).
     kind: TrialKind,
-    /// Step two: the best policy was restored in this learning trial because the DOF's state left
-    /// the safety envelope; the trial goes on with it, without learning.
-    recovering: bool,
+    /// Step two: the DOF's state left the safety envelope in this learning trial; the best policy
+    /// was restored where there was one, and the trial goes on with it without learning.
+    left_envelope: bool,
     /// Step two: both DOFs' rewards (the scenario's), whose state costs make the pair's cost.
     rewards: Option<PerDof<QuadraticCost>>,
     /// Step two: the last evaluation judged, the trial that closed it and the pair's score there.
@@ -130,7 +130,7 @@ impl Behaviour {
             last_stamp: None,
             step_two: None,
             kind: TrialKind::Learning,
-            recovering: false,
+            left_envelope: false,
             rewards: None,
             judged: None,
         }
@@ -144,6 +144,7 @@ impl Behaviour {
         scenario: &Scenario,
     ) -> Result<Self, LqrError> {
         agent.set_guard(guard(scenario, agent.params(), agent.dof())?);
+        agent.learn_as_on_the_vehicle();
         agent.set_learning(step_two.learning);
         Ok(Behaviour {
             agent,
@@ -151,7 +152,7 @@ impl Behaviour {
             last_stamp: None,
             step_two: Some(step_two),
             kind: TrialKind::Learning,
-            recovering: false,
+            left_envelope: false,
             rewards: Some(PerDof {
                 sway: scenario.reward.sway,
                 yaw: scenario.reward.yaw,
@@ -262,7 +263,7 @@ impl Behaviour {
     /// the best policy is restored at once and the trial goes on with it, without learning.
     fn guard_envelope(&mut self, obs: &CableObservation, trial: u32) {
         let learning = self.step_two.as_ref().is_some_and(|s| s.learning);
-        if !learning || self.recovering || self.kind.is_evaluation() {
+        if !learning || self.left_envelope || self.kind.is_evaluation() {
             return;
         }
         let x = obs.state(self.dof())[0];
@@ -272,13 +273,15 @@ impl Behaviour {
         }
         if self.fall_back(trial, "the position left the safety envelope") {
             self.agent.set_learning(false);
-            self.recovering = true;
         }
+        // Once per trial: with nothing to restore, the trial goes on learning, and the next steps
+        // outside the envelope would say the same again.
+        self.left_envelope = true;
     }
 
     /// Step two: sets the agent up for trial `trial` (learning or not, its exploration noise).
     fn begin_trial(&mut self, trial: u32) {
-        self.recovering = false;
+        self.left_envelope = false;
         let Some(s) = &self.step_two else { return };
         self.kind = s.kind(trial);
         let seed = s.noise_seed(trial, self.kind);
@@ -623,6 +626,55 @@ mod tests {
         trial(&mut b, &mut seq, 2, 5, StepStatus::TimeLimit, calm);
         trial(&mut b, &mut seq, 3, 5, StepStatus::TimeLimit, calm);
         assert!(b.agent().is_learning());
+    }
+
+    /// Step two learns with its own eligibility rate: a NAC agent of step one's `nac.lambda` takes
+    /// `step_two.lambda` when it becomes a step-two behaviour, and keeps it through a checkpoint.
+    #[test]
+    fn step_two_learns_with_its_own_eligibility_rate() {
+        let (scenario, mut learning) = params();
+        learning.nac.lambda = 0.8;
+        learning.step_two.lambda = 0.95;
+        let lambda = |b: &Behaviour| match b.agent().learner() {
+            learning::Learner::Nac(n) => n.config().lambda,
+            learning::Learner::Gpomdp(_) => unreachable!(),
+        };
+        let agent = new_agent(Dof::Yaw, Algorithm::Nac, &scenario, &learning, 5);
+        let step_one = Behaviour::new(agent.clone());
+        assert_eq!(lambda(&step_one), 0.8);
+        let b =
+            Behaviour::for_step_two(agent, StepTwo::new(&learning, true, 5, 6), &scenario).unwrap();
+        assert_eq!(lambda(&b), 0.95);
+        let resumed = learning::Agent::from_state(b.agent().checkpoint(), 7).unwrap();
+        let b = Behaviour::for_step_two(resumed, StepTwo::new(&learning, true, 5, 6), &scenario)
+            .unwrap();
+        assert_eq!(lambda(&b), 0.95);
+    }
+
+    /// With no policy evaluated to restore (the first evaluation lost the cable), leaving the
+    /// envelope changes nothing: the trial goes on learning, however long the state stays outside.
+    #[test]
+    fn leaving_the_envelope_with_nothing_to_restore_goes_on_learning() {
+        let mut b = step_two_sway();
+        let mut seq = 0;
+        let calm = |t: u32| 0.1 * (0.4 * t as f64).sin();
+        trial(&mut b, &mut seq, 0, 20, StepStatus::Lost, calm);
+        assert_eq!(b.agent().safety().best, None);
+        let mut gains = Vec::new();
+        for step in 0..20 {
+            let mut o = obs(seq, 1, step, StepStatus::Running, true);
+            o.observation.x_g = if step < 5 {
+                calm(step)
+            } else {
+                0.45 + 0.01 * step as f64
+            };
+            seq += 1;
+            b.step(&o);
+            assert!(b.agent().is_learning(), "step {step}");
+            gains.push(b.agent().gain());
+        }
+        assert_ne!(gains[6], gains[19], "learning went on outside the envelope");
+        assert_eq!(b.agent().safety().rollbacks, 0);
     }
 
     /// Step two for `dof` with one evaluation trial and one learning trial in turn, gains moving at

@@ -71,6 +71,8 @@ pub struct LearningParams {
     pub evaluation: EvaluationParams,
     /// Step two: what keeps online learning on the vehicle safe.
     pub safety: SafetyParams,
+    /// Step two: how the learner itself differs on the vehicle.
+    pub step_two: StepTwoParams,
 }
 
 impl LearningParams {
@@ -90,6 +92,7 @@ impl Validate for LearningParams {
         self.gpomdp.validate(&join(key, "gpomdp"))?;
         self.evaluation.validate(&join(key, "evaluation"))?;
         self.safety.validate(&join(key, "safety"))?;
+        self.step_two.validate(&join(key, "step_two"))?;
         if self.safety.rollback.enabled && self.evaluation.trials == 0 {
             return Err(Invalid::new(
                 join(key, "safety.rollback.enabled"),
@@ -255,6 +258,34 @@ impl Validate for EvaluationParams {
             1.0,
             1.0e6,
         )
+    }
+}
+
+/// The learner on the vehicle (step two), where it differs from simulation.
+///
+/// `lambda` replaces NAC's eligibility rate (`nac.lambda`) for step two. In simulation the observation
+/// is the state of the model the learner was tuned on; on the vehicle it is not: the thrusters lag, a
+/// frame arrives a period late, and perception's filter smooths what it reports. LSTD-Q's estimate of
+/// the natural gradient then leans on the critic's values of states that do not tell the whole
+/// story, and the shorter the eligibility, the more: with images on the twin, at `lambda` 0.8 the
+/// yaw gain of some seeds moves away from the twin's limit; at 1 (returns, not bootstrapped values)
+/// it moves towards it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StepTwoParams {
+    /// NAC's eligibility rate in step two, in [0, 1].
+    pub lambda: f64,
+}
+
+impl Default for StepTwoParams {
+    fn default() -> Self {
+        StepTwoParams { lambda: 1.0 }
+    }
+}
+
+impl Validate for StepTwoParams {
+    fn validate(&self, key: &str) -> Result<(), Invalid> {
+        in_range(key, "lambda", self.lambda, 0.0, 1.0)
     }
 }
 

@@ -24,7 +24,8 @@ pub use autopilot::{
 pub use error::{ConfigError, Invalid};
 pub use learning::{
     EvaluationParams, GpomdpParams, LearningParams, MAX_ANGLE_LAG, MAX_GUARD_DELAY, NacParams,
-    PerDof, PolicyParams, Preset, RollbackParams, SafetyParams, StabilityParams, TrustRegionParams,
+    PerDof, PolicyParams, Preset, RollbackParams, SafetyParams, StabilityParams, StepTwoParams,
+    TrustRegionParams,
 };
 pub use pilot::{ACRO_YAW_P_DEFAULT, FULL_STICK_CDEG, PilotFractions, PilotMode, PilotParams};
 pub use scenario::{

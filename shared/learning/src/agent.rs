@@ -406,6 +406,13 @@ impl Agent {
         Some(summary)
     }
 
+    /// Learns from now on as step two does on the vehicle ([`config::StepTwoParams`] of its
+    /// parameters): NAC's eligibility rate becomes `step_two.lambda`.
+    pub fn learn_as_on_the_vehicle(&mut self) {
+        self.learner
+            .set_eligibility_rate(self.params.step_two.lambda);
+    }
+
     /// Turns learning on or off. Off, the agent acts (and accounts rewards and episodes) but its
     /// learner sees nothing.
     pub fn set_learning(&mut self, on: bool) {

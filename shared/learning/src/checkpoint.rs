@@ -25,7 +25,9 @@
 //!   evaluation in progress or weights of the pair's score (`SafetyState::evaluation_cost`,
 //!   `scale`); read with the best's pair unknown (the next evaluation judged replaces it) and the
 //!   weights taken from the next evaluation.
-//! - version 4: the current format.
+//! - version 4: no parameters of step two's own learner (`LearningParams::step_two`); read with
+//!   their defaults.
+//! - version 5: the current format.
 //!
 //! Saving writes a temporary file in the target's directory, syncs it, renames it over the target and
 //! syncs the directory: a crash leaves either the old checkpoint or the new one, never a mix.
@@ -41,7 +43,7 @@ use std::path::{Path, PathBuf};
 /// The first bytes of every checkpoint file.
 pub const MAGIC: [u8; 8] = *b"CTRKCKPT";
 /// The format this code writes, and the newest it reads.
-pub const FORMAT_VERSION: u32 = 4;
+pub const FORMAT_VERSION: u32 = 5;
 /// Magic, version, payload length, CRC.
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 4;
 
@@ -447,6 +449,11 @@ impl Checkpoint {
                 bincode::serde::decode_from_slice(&payload, bincode::config::standard())
                     .map_err(decode_err)?;
             (old.into(), used)
+        } else if version == 4 {
+            let (old, used): (v4::Checkpoint, usize) =
+                bincode::serde::decode_from_slice(&payload, bincode::config::standard())
+                    .map_err(decode_err)?;
+            (old.into(), used)
         } else {
             bincode::serde::decode_from_slice(&payload, bincode::config::standard())
                 .map_err(decode_err)?
@@ -567,11 +574,13 @@ mod v1 {
     }
 }
 
-/// The payload of format versions 2 and 3 (see the module docs): today's agent state but for the
-/// safety layer's, `S`, which each version has its own.
-mod before_pairs {
+/// The payload of format versions 2 to 4 (see the module docs): today's agent state but for the
+/// safety layer's, `S`, which versions 2 and 3 have their own, and the learning parameters before
+/// step two's learner had its own ([`super::v4::LearningParams`]).
+mod before_step_two {
+    use super::v4::LearningParams;
     use super::{LearnerState, PolicyState};
-    use config::{Dof, LearningParams, QuadraticCost};
+    use config::{Dof, QuadraticCost};
     use serde::{Deserialize, Serialize};
 
     #[derive(Serialize, Deserialize)]
@@ -597,7 +606,7 @@ mod before_pairs {
         fn from(s: AgentState<S>) -> Self {
             super::AgentState {
                 dof: s.dof,
-                params: s.params,
+                params: s.params.into(),
                 cost: s.cost,
                 state_max: s.state_max,
                 policy: s.policy,
@@ -623,9 +632,9 @@ mod before_pairs {
 mod v2 {
     use serde::{Deserialize, Serialize};
 
-    pub type Checkpoint = super::before_pairs::Checkpoint<SafetyState>;
+    pub type Checkpoint = super::before_step_two::Checkpoint<SafetyState>;
     #[cfg(test)]
-    pub type AgentState = super::before_pairs::AgentState<SafetyState>;
+    pub type AgentState = super::before_step_two::AgentState<SafetyState>;
 
     #[derive(Clone, Copy, Serialize, Deserialize)]
     pub struct SafetyState {
@@ -660,9 +669,9 @@ mod v3 {
     use config::PerDof;
     use serde::{Deserialize, Serialize};
 
-    pub type Checkpoint = super::before_pairs::Checkpoint<SafetyState>;
+    pub type Checkpoint = super::before_step_two::Checkpoint<SafetyState>;
     #[cfg(test)]
-    pub type AgentState = super::before_pairs::AgentState<SafetyState>;
+    pub type AgentState = super::before_step_two::AgentState<SafetyState>;
 
     #[derive(Clone, Copy, Serialize, Deserialize)]
     pub struct SafetyState {
@@ -703,6 +712,39 @@ mod v3 {
                 evaluation_lost: 0,
                 evaluation_cost: PerDof::default(),
                 scale: PerDof::default(),
+            }
+        }
+    }
+}
+
+/// Format version 4: today's safety state, the learning parameters without step two's learner's
+/// (`LearningParams::step_two`), read with their defaults.
+mod v4 {
+    use config::{EvaluationParams, GpomdpParams, NacParams, PolicyParams, SafetyParams};
+    use serde::{Deserialize, Serialize};
+
+    pub type Checkpoint = super::before_step_two::Checkpoint<crate::safety::SafetyState>;
+    #[cfg(test)]
+    pub type AgentState = super::before_step_two::AgentState<crate::safety::SafetyState>;
+
+    #[derive(Clone, Serialize, Deserialize)]
+    pub struct LearningParams {
+        pub policy: PolicyParams,
+        pub nac: NacParams,
+        pub gpomdp: GpomdpParams,
+        pub evaluation: EvaluationParams,
+        pub safety: SafetyParams,
+    }
+
+    impl From<LearningParams> for config::LearningParams {
+        fn from(p: LearningParams) -> Self {
+            config::LearningParams {
+                policy: p.policy,
+                nac: p.nac,
+                gpomdp: p.gpomdp,
+                evaluation: p.evaluation,
+                safety: p.safety,
+                ..Default::default()
             }
         }
     }
@@ -1049,6 +1091,64 @@ mod tests {
         bytes
     }
 
+    fn v4_params(p: &LearningParams) -> v4::LearningParams {
+        v4::LearningParams {
+            policy: p.policy.clone(),
+            nac: p.nac.clone(),
+            gpomdp: p.gpomdp.clone(),
+            evaluation: p.evaluation.clone(),
+            safety: p.safety.clone(),
+        }
+    }
+
+    /// A file of format 4 (before step two's learner had parameters of its own) still loads, with
+    /// their defaults and everything else as saved.
+    #[test]
+    fn a_format_4_checkpoint_loads_with_step_twos_learner_at_its_defaults() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.ckpt");
+        let mut saved = both();
+        for s in [saved.sway.as_mut(), saved.yaw.as_mut()]
+            .into_iter()
+            .flatten()
+        {
+            s.params.step_two.lambda = 0.3;
+            s.params.nac.lambda = 0.7;
+            s.safety.rollbacks = 2;
+        }
+        let old = |s: &AgentState| v4::AgentState {
+            dof: s.dof,
+            params: v4_params(&s.params),
+            cost: s.cost,
+            state_max: s.state_max,
+            policy: s.policy,
+            learner: s.learner.clone(),
+            steps: s.steps,
+            episodes: s.episodes,
+            safety: s.safety,
+        };
+        let four = v4::Checkpoint {
+            sway: saved.sway.as_ref().map(old),
+            yaw: saved.yaw.as_ref().map(old),
+        };
+        let c = bincode::config::standard();
+        fs::write(
+            &path,
+            file_of(4, &bincode::serde::encode_to_vec(&four, c).unwrap()),
+        )
+        .unwrap();
+        let mut expected = saved.clone();
+        for s in [expected.sway.as_mut(), expected.yaw.as_mut()]
+            .into_iter()
+            .flatten()
+        {
+            s.params.step_two = config::StepTwoParams::default();
+        }
+        let loaded = Checkpoint::load(&path).unwrap();
+        assert_eq!(loaded, expected);
+        assert_eq!(loaded.sway.unwrap().params.nac.lambda, 0.7);
+    }
+
     /// Files of formats 2 (before the count of lost evaluation trials) and 3 (before pairs) still
     /// load: the counts as saved, the best policy with its pair unknown (infinitely costly, so the
     /// next evaluation replaces it), the evaluation in progress started again.
@@ -1074,7 +1174,7 @@ mod tests {
         };
         let v3_of = |s: &AgentState| v3::AgentState {
             dof: s.dof,
-            params: s.params.clone(),
+            params: v4_params(&s.params),
             cost: s.cost,
             state_max: s.state_max,
             policy: s.policy,
@@ -1141,7 +1241,7 @@ mod tests {
     fn the_header_is_the_documented_layout() {
         let (_dir, _path, bytes) = saved_bytes();
         assert_eq!(&bytes[..8], b"CTRKCKPT");
-        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 4);
+        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 5);
         let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
         assert_eq!(len as usize, bytes.len() - HEADER_LEN);
         let crc = u32::from_le_bytes(bytes[20..24].try_into().unwrap());

@@ -108,6 +108,13 @@ impl<const S: usize, const N: usize> Learner<S, N> {
         PolicyLearner::actor_updates(self)
     }
 
+    /// Sets NAC's eligibility rate from now on; OLPOMDP has none (its trace discount is its own).
+    pub fn set_eligibility_rate(&mut self, lambda: f64) {
+        if let Learner::Nac(l) = self {
+            l.set_lambda(lambda);
+        }
+    }
+
     /// Drops what was learned about the current policy (NAC's statistics, OLPOMDP's trace), as if
     /// nothing had been seen; the counters of transitions and actor updates stay.
     pub fn forget(&mut self) {

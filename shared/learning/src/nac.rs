@@ -309,6 +309,12 @@ impl<const S: usize, const N: usize> Nac<S, N> {
         self.stats.actor_updates = actor_updates;
     }
 
+    /// Sets the eligibility rate from now on (step two's, [`config::StepTwoParams`]); the trace
+    /// so far stays.
+    pub fn set_lambda(&mut self, lambda: f64) {
+        self.config.lambda = lambda;
+    }
+
     /// The configuration.
     pub fn config(&self) -> &NacConfig {
         &self.config
