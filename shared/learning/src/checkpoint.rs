@@ -1091,6 +1091,22 @@ mod tests {
         bytes
     }
 
+    /// `s` as an older format's agent state: its learning parameters without step two's own, its
+    /// safety layer's state `safety`.
+    fn legacy<S>(s: &AgentState, safety: S) -> before_step_two::AgentState<S> {
+        before_step_two::AgentState {
+            dof: s.dof,
+            params: v4_params(&s.params),
+            cost: s.cost,
+            state_max: s.state_max,
+            policy: s.policy,
+            learner: s.learner.clone(),
+            steps: s.steps,
+            episodes: s.episodes,
+            safety,
+        }
+    }
+
     fn v4_params(p: &LearningParams) -> v4::LearningParams {
         v4::LearningParams {
             policy: p.policy.clone(),
@@ -1116,17 +1132,7 @@ mod tests {
             s.params.nac.lambda = 0.7;
             s.safety.rollbacks = 2;
         }
-        let old = |s: &AgentState| v4::AgentState {
-            dof: s.dof,
-            params: v4_params(&s.params),
-            cost: s.cost,
-            state_max: s.state_max,
-            policy: s.policy,
-            learner: s.learner.clone(),
-            steps: s.steps,
-            episodes: s.episodes,
-            safety: s.safety,
-        };
+        let old = |s: &AgentState| -> v4::AgentState { legacy(s, s.safety) };
         let four = v4::Checkpoint {
             sway: saved.sway.as_ref().map(old),
             yaw: saved.yaw.as_ref().map(old),
@@ -1172,25 +1178,20 @@ mod tests {
             }),
             ..Default::default()
         };
-        let v3_of = |s: &AgentState| v3::AgentState {
-            dof: s.dof,
-            params: v4_params(&s.params),
-            cost: s.cost,
-            state_max: s.state_max,
-            policy: s.policy,
-            learner: s.learner.clone(),
-            steps: s.steps,
-            episodes: s.episodes,
-            safety: v3::SafetyState {
-                bounded: s.safety.bounded,
-                refused: s.safety.refused,
-                rollbacks: s.safety.rollbacks,
-                evaluations: s.safety.evaluations,
-                best: s.safety.best.map(|_| best),
-                evaluation_sum: -7.0,
-                evaluation_trials: 2,
-                evaluation_lost: 1,
-            },
+        let v3_of = |s: &AgentState| -> v3::AgentState {
+            legacy(
+                s,
+                v3::SafetyState {
+                    bounded: s.safety.bounded,
+                    refused: s.safety.refused,
+                    rollbacks: s.safety.rollbacks,
+                    evaluations: s.safety.evaluations,
+                    best: s.safety.best.map(|_| best),
+                    evaluation_sum: -7.0,
+                    evaluation_trials: 2,
+                    evaluation_lost: 1,
+                },
+            )
         };
         let v2_of = |s: &AgentState| {
             let f = v3_of(s);
