@@ -113,8 +113,9 @@ pub struct Behaviour {
     step_two: Option<StepTwo>,
     /// What the current trial is for (step two).
     kind: TrialKind,
-    /// Step two: the DOF's state left the safety envelope in this learning trial; the best policy
-    /// was restored where there was one, and the trial goes on with it without learning.
+    /// Step two: the DOF's state left the safety envelope in this learning trial. With a best policy
+    /// to restore, it was restored and the trial goes on with it without learning; without one, the
+    /// trial goes on learning. Either way the envelope is not looked at again in this trial.
     left_envelope: bool,
     /// Step two: both DOFs' rewards (the scenario's), whose state costs make the pair's cost.
     rewards: Option<PerDof<QuadraticCost>>,
@@ -260,7 +261,8 @@ impl Behaviour {
 
     /// Step two, a learning trial: when the DOF's observed position leaves the safety envelope
     /// ([`SAFETY_ENVELOPE`] of its observation box), the learned policy is heading for losing the cable:
-    /// the best policy is restored at once and the trial goes on with it, without learning.
+    /// the best policy, if one was evaluated, is restored at once and the trial goes on with it,
+    /// without learning.
     fn guard_envelope(&mut self, obs: &CableObservation, trial: u32) {
         let learning = self.step_two.as_ref().is_some_and(|s| s.learning);
         if !learning || self.left_envelope || self.kind.is_evaluation() {
