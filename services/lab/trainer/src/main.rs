@@ -185,9 +185,9 @@ enum Command {
         #[arg(long, value_name = "RUN.json")]
         session: Option<PathBuf>,
         /// Held-out evaluation sets (other starts, floors and noise): the limit and every
-        /// `--candidate` are evaluated on them too, with the cables they lose; the spread over them
-        /// of the last candidate's return minus the first's is the evaluation's noise the check
-        /// allows (none under 2 sets or 2 candidates: any margin beats the limit).
+        /// `--candidate` are evaluated on them too, with the cables they lose, and the search's
+        /// start; the largest spread over them of a difference between two of those policies is the
+        /// evaluation's noise the check allows (none under 2 sets: any margin beats the limit).
         #[arg(long, default_value_t = 0)]
         held_out: u32,
         /// Rounds of the search at most.
@@ -1013,7 +1013,8 @@ fn twin_limit(
     })
     .into_iter()
     .collect::<Result<Vec<_>, _>>()?;
-    // The held-out sets: every named directory; the noise of the check from the first and the last.
+    // The held-out sets: every named directory and the search's start (a policy of other gains than
+    // the candidates', as the limit's will be); the noise of the check from all of them.
     let sets = held_out_sets(seed, given.held_out);
     let mut held = Vec::new();
     for (name, dir) in given.candidates.iter().filter(|_| !sets.is_empty()) {
@@ -1027,25 +1028,20 @@ fn twin_limit(
             e,
         )?);
     }
-    let noise = match (held.first(), held.last()) {
-        (Some(first), Some(last)) if held.len() >= 2 && sets.len() >= 2 => {
-            let diff = |dof: Dof| {
-                let d: Vec<f64> = last
-                    .returns
-                    .get(dof)
-                    .iter()
-                    .zip(first.returns.get(dof))
-                    .map(|(a, b)| a - b)
-                    .collect();
-                trainer::evaluation::spread(&d)
-            };
-            PerDof {
-                sway: diff(Dof::Sway),
-                yaw: diff(Dof::Yaw),
-            }
-        }
-        _ => PerDof::both(f64::NAN),
-    };
+    if !sets.is_empty() {
+        let start = policy_checkpoint(scenario, learning, start_gains);
+        held.push(held_out(
+            setup,
+            &twin,
+            search.eyes,
+            "start",
+            &start,
+            &sets,
+            e,
+        )?);
+    }
+    let noise =
+        trainer::twin_limit::difference_noise(&held.iter().map(|h| &h.returns).collect::<Vec<_>>());
     cli::outln!(
         "twin limit on {} ({} perception): cross-entropy search from sway K = {:?}, yaw K = {:?}; {} candidates x {} generations on {} trials; {} policies to be above",
         twin_path.display(),

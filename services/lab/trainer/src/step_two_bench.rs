@@ -16,7 +16,9 @@
 //!
 //! **The limit is a limit**: every policy a seed evaluated (the simulation policy, each evaluation
 //! of the session, each policy after a learning trial, the final one) is a candidate; where one
-//! evaluates above the bench's limit by more than twice the noise, the seed's limit search goes on
+//! evaluates above the bench's limit by more than twice the check's noise (the largest spread over
+//! the held-out sets of a difference between the simulation policy, the final one and the bench's
+//! limit: [`twin_limit::difference_noise`]), the seed's limit search goes on
 //! from it ([`twin_limit::find`], on the seed's own search set) and the seed's row reports that
 //! limit. A row's limit still beaten after the search's rounds is marked in the table.
 //!
@@ -123,6 +125,10 @@ pub struct SeedResult {
     pub bench_limit: PerDof<f64>,
     /// A policy of the seed still above the row's limit beyond the noise, per DOF.
     pub limit_beaten: PerDof<Option<Beaten>>,
+    /// The noise the limit's check allowed ([`twin_limit::difference_noise`] of the simulation
+    /// policy, step two's and the bench's limit on the held-out sets; NaN without them).
+    #[serde(default = "unmeasured", deserialize_with = "nan_per_dof")]
+    pub check_noise: PerDof<f64>,
     #[serde(deserialize_with = "nan_per_dof")]
     pub gap_closed: PerDof<f64>,
     /// The first learning trial after which the policy closed half the gap.
@@ -140,6 +146,10 @@ pub struct SeedResult {
     pub held_out_limit: PerDof<Vec<f64>>,
     pub held_out_lost: HeldOutLost,
     pub held_out_trials: u32,
+}
+
+fn unmeasured() -> PerDof<f64> {
+    PerDof::both(f64::NAN)
 }
 
 /// A `PerDof<f64>` whose values may have been written as `null` (JSON has no NaN).
@@ -376,39 +386,42 @@ pub fn run_seed(
         sway: evals.iter().map(|v| v.mean().sway).collect::<Vec<_>>(),
         yaw: evals.iter().map(|v| v.mean().yaw).collect::<Vec<_>>(),
     };
+    let held_bench_limit = on_sets(limit)?;
     let (held_sim_j, held_after_j) = (means(&held_sim), means(&held_after));
-    let noise = PerDof {
-        sway: difference_noise(&held_sim_j.sway, &held_after_j.sway),
-        yaw: difference_noise(&held_sim_j.yaw, &held_after_j.yaw),
-    };
+    let noise =
+        twin_limit::difference_noise(&[&held_sim_j, &held_after_j, &means(&held_bench_limit)]);
 
     // The limit: the bench's, unless a policy of this row beats it beyond the noise.
     let bench_limit = evaluate(scenario, twin, params.eyes, limit, seed, e)?;
     let candidates = candidates(&curve, &every_trial, final_gains, j_after);
     let beaten = twin_limit::beaten(bench_limit.mean(), bench_limit.lost, &candidates, noise);
-    let (limit_gains, j_limit, limit_rounds, limit_beaten) =
-        if beaten.sway.is_some() || beaten.yaw.is_some() {
-            let found = twin_limit::find(
-                scenario,
-                learning,
-                twin,
-                gains(limit),
-                &candidates,
-                &params.seed_search(seed),
-                &Check {
-                    seed,
-                    trials: e,
-                    noise,
-                },
-                params.limit_rounds,
-                &Progress::hidden(),
-            )?;
-            let j = found.evaluation.mean();
-            (found.gains, j, found.rounds, found.beaten)
-        } else {
-            (gains(limit), bench_limit.mean(), Vec::new(), beaten)
-        };
-    let held_limit = on_sets(&policy_checkpoint(scenario, learning, limit_gains))?;
+    let searched = beaten.sway.is_some() || beaten.yaw.is_some();
+    let (limit_gains, j_limit, limit_rounds, limit_beaten) = if searched {
+        let found = twin_limit::find(
+            scenario,
+            learning,
+            twin,
+            gains(limit),
+            &candidates,
+            &params.seed_search(seed),
+            &Check {
+                seed,
+                trials: e,
+                noise,
+            },
+            params.limit_rounds,
+            &Progress::hidden(),
+        )?;
+        let j = found.evaluation.mean();
+        (found.gains, j, found.rounds, found.beaten)
+    } else {
+        (gains(limit), bench_limit.mean(), Vec::new(), beaten)
+    };
+    let held_limit = if searched {
+        on_sets(&policy_checkpoint(scenario, learning, limit_gains))?
+    } else {
+        held_bench_limit
+    };
     let lost = |evals: &[Evaluation]| evals.iter().map(|v| v.lost).sum();
 
     let closed = |dof: Dof| gap_closed(*j_sim.get(dof), *j_after.get(dof), *j_limit.get(dof));
@@ -441,6 +454,7 @@ pub fn run_seed(
         limit_rounds,
         bench_limit: bench_limit.mean(),
         limit_beaten,
+        check_noise: noise,
         gap_closed: PerDof {
             sway: closed(Dof::Sway),
             yaw: closed(Dof::Yaw),
@@ -956,6 +970,7 @@ mod tests {
             limit_rounds: Vec::new(),
             bench_limit: both(-5.0),
             limit_beaten: PerDof::default(),
+            check_noise: PerDof::both(f64::NAN),
             gap_closed: both(gap_closed(sim, after, -5.0)),
             trials_to_half: PerDof::default(),
             session_trials: 45,

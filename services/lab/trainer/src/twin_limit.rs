@@ -25,10 +25,13 @@
 //! member of a DOF on the search set. The limit found is then checked on the evaluation set against
 //! every candidate: where one beats it by more than twice the evaluation's noise on a difference,
 //! the search goes on from it (a new round: the beaters in its first generation, a fresh search set
-//! twice the size, which tells policies apart that the last could not). After the last round, a
-//! limit still beaten says so ([`Limit::beaten`]): the report shows by what and by how much.
+//! twice the size, which tells policies apart that the last could not). The limit is then the
+//! round's limit least beaten on the evaluation set (a larger search set need not evaluate higher
+//! there); still beaten, it says so ([`Limit::beaten`]): the report shows by what and by how much.
+//! The noise the check allows is [`difference_noise`]'s: how much a difference between two policies
+//! of different gains moves over held-out sets.
 
-use crate::evaluation::{Evaluation, evaluate, policy_checkpoint};
+use crate::evaluation::{Evaluation, evaluate, policy_checkpoint, spread};
 use crate::experiment::parallel_map;
 use crate::progress::Progress;
 use crate::twin_world::FromCheckpointError;
@@ -375,6 +378,37 @@ pub fn beaten(
     }
 }
 
+/// The evaluation's noise on a difference between two policies, per DOF: the largest spread over
+/// held-out sets of the difference between two of `policies`' returns (one return per set). The
+/// check compares a limit with policies of other gains, and how much such a difference moves from
+/// one set of starts to another grows with how far apart the gains are: a pair of alike policies
+/// (step two kept the simulation policy: no difference on any set) measures nothing, so the most
+/// different pair sets the noise. NaN without two policies on two sets.
+pub fn difference_noise(policies: &[&PerDof<Vec<f64>>]) -> PerDof<f64> {
+    let of = |dof: Dof| {
+        let mut noise = f64::NAN;
+        for (i, a) in policies.iter().enumerate() {
+            for b in &policies[i + 1..] {
+                let d: Vec<f64> = a
+                    .get(dof)
+                    .iter()
+                    .zip(b.get(dof))
+                    .map(|(x, y)| x - y)
+                    .collect();
+                let s = spread(&d);
+                if s.is_finite() && (noise.is_nan() || s > noise) {
+                    noise = s;
+                }
+            }
+        }
+        noise
+    };
+    PerDof {
+        sway: of(Dof::Sway),
+        yaw: of(Dof::Yaw),
+    }
+}
+
 /// Where the limit is checked: the evaluation set (`seed`, `trials`), and the evaluation's noise on
 /// a difference between two policies there, per DOF.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -401,7 +435,7 @@ pub struct Limit {
     /// Its evaluation on the evaluation set.
     pub evaluation: Evaluation,
     pub rounds: Vec<Round>,
-    /// After the last round: a candidate still above it beyond the noise, per DOF.
+    /// A candidate still above it beyond the noise, per DOF.
     pub beaten: PerDof<Option<Beaten>>,
 }
 
@@ -483,14 +517,112 @@ pub fn find(
             .map(|c| c.gains)
             .collect();
     }
-    let (last, evaluation) = done.pop().expect("one round at least");
-    let mut rounds: Vec<Round> = done.into_iter().map(|(r, _)| r).collect();
-    let limit = Limit {
-        gains: last.found.gains,
-        evaluation,
-        beaten: last.beaten.clone(),
-        rounds: Vec::new(),
-    };
-    rounds.push(last);
-    Ok(Limit { rounds, ..limit })
+    // A later round searches a larger set but need not end higher on the evaluation set: the
+    // limit is the round least beaten there.
+    let (rounds, mut evaluations): (Vec<Round>, Vec<Evaluation>) = done.into_iter().unzip();
+    let best = least_beaten(&rounds);
+    Ok(Limit {
+        gains: rounds[best].found.gains,
+        evaluation: evaluations.swap_remove(best),
+        beaten: rounds[best].beaten.clone(),
+        rounds,
+    })
+}
+
+/// The round whose limit is least beaten on the evaluation set (the first of equals).
+fn least_beaten(rounds: &[Round]) -> usize {
+    (0..rounds.len())
+        .min_by(|&a, &b| shortfall(&rounds[a]).total_cmp(&shortfall(&rounds[b])))
+        .expect("one round at least")
+}
+
+/// How far a round's limit is beaten on the evaluation set: the candidates' margins above it,
+/// relative to its return, summed over the DOFs (0: not beaten).
+fn shortfall(round: &Round) -> f64 {
+    Dof::ALL
+        .iter()
+        .filter_map(|&dof| {
+            let b = round.beaten.get(dof).as_ref()?;
+            Some(b.margin / round.evaluated.get(dof).abs().max(f64::MIN_POSITIVE))
+        })
+        .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn returns(sway: &[f64], yaw: &[f64]) -> PerDof<Vec<f64>> {
+        PerDof {
+            sway: sway.to_vec(),
+            yaw: yaw.to_vec(),
+        }
+    }
+
+    /// The check's noise is set by the pair of policies whose difference moves most over the sets;
+    /// a policy and its copy (step two kept the simulation policy) measure nothing, and so does one
+    /// set.
+    #[test]
+    fn the_noise_is_the_most_different_pairs() {
+        let sim = returns(&[-1.0, -2.0, -1.5], &[-5.0, -6.0, -5.5]);
+        let kept = sim.clone();
+        let limit = returns(&[-0.5, -1.9, -1.2], &[-4.0, -5.8, -5.0]);
+        alone_is_nothing(&[&sim, &kept]);
+        let n = difference_noise(&[&sim, &kept, &limit]);
+        // limit - sim: sway [0.5, 0.1, 0.3], yaw [1.0, 0.2, 0.5].
+        assert!((n.sway - 0.2).abs() < 1e-12, "{n:?}");
+        assert!((n.yaw - spread(&[1.0, 0.2, 0.5])).abs() < 1e-12, "{n:?}");
+        let one_set = returns(&[-1.0], &[-5.0]);
+        let n = difference_noise(&[&one_set, &returns(&[-0.5], &[-4.0])]);
+        assert!(n.sway.is_nan() && n.yaw.is_nan(), "{n:?}");
+    }
+
+    fn round(evaluated: (f64, f64), beaten_by: (f64, f64)) -> Round {
+        let by = |margin: f64| {
+            (margin > 0.0).then(|| Beaten {
+                by: "a candidate".to_owned(),
+                margin,
+                noise: 0.0,
+            })
+        };
+        Round {
+            search: SearchParams::default(),
+            found: Found {
+                start: PerDof::default(),
+                gains: PerDof::default(),
+                search_return: PerDof::both(0.0),
+                search_lost: 0,
+                generations: Vec::new(),
+                evaluations: 0,
+            },
+            evaluated: PerDof {
+                sway: evaluated.0,
+                yaw: evaluated.1,
+            },
+            beaten: PerDof {
+                sway: by(beaten_by.0),
+                yaw: by(beaten_by.1),
+            },
+        }
+    }
+
+    /// The limit is the round least beaten, relative to each DOF's return (sway's are tens of
+    /// times smaller than yaw's), not the last one.
+    #[test]
+    fn the_limit_is_the_round_least_beaten() {
+        let rounds = [
+            round((-0.2, -5.0), (0.0, 0.5)),  // yaw beaten by 10%
+            round((-0.2, -5.0), (0.01, 0.0)), // sway by 5%: the least
+            round((-0.2, -5.0), (0.02, 0.1)), // 10% + 2%
+        ];
+        assert_eq!(least_beaten(&rounds), 1);
+        let unbeaten = round((-0.3, -6.0), (0.0, 0.0));
+        assert_eq!(least_beaten(&[rounds[0].clone(), unbeaten.clone()]), 1);
+        assert_eq!(least_beaten(&[unbeaten.clone(), unbeaten]), 0);
+    }
+
+    fn alone_is_nothing(policies: &[&PerDof<Vec<f64>>]) {
+        let n = difference_noise(policies);
+        assert_eq!((n.sway, n.yaw), (0.0, 0.0));
+    }
 }
