@@ -531,19 +531,20 @@ pub fn find(
 
 /// The round whose limit is least beaten on the evaluation set (the first of equals).
 fn least_beaten(rounds: &[Round]) -> usize {
+    let of = |r: &Round| shortfall(&r.evaluated, &r.beaten);
     (0..rounds.len())
-        .min_by(|&a, &b| shortfall(&rounds[a]).total_cmp(&shortfall(&rounds[b])))
+        .min_by(|&a, &b| of(&rounds[a]).total_cmp(&of(&rounds[b])))
         .expect("one round at least")
 }
 
-/// How far a round's limit is beaten on the evaluation set: the candidates' margins above it,
-/// relative to its return, summed over the DOFs (0: not beaten).
-fn shortfall(round: &Round) -> f64 {
+/// How far a limit evaluated at `evaluated` is `beaten` on the evaluation set: the candidates'
+/// margins above it, relative to its return, summed over the DOFs (0: not beaten).
+pub fn shortfall(evaluated: &PerDof<f64>, beaten: &PerDof<Option<Beaten>>) -> f64 {
     Dof::ALL
         .iter()
         .filter_map(|&dof| {
-            let b = round.beaten.get(dof).as_ref()?;
-            Some(b.margin / round.evaluated.get(dof).abs().max(f64::MIN_POSITIVE))
+            let b = beaten.get(dof).as_ref()?;
+            Some(b.margin / evaluated.get(dof).abs().max(f64::MIN_POSITIVE))
         })
         .sum()
 }
