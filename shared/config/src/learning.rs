@@ -269,8 +269,8 @@ impl Validate for EvaluationParams {
 /// the natural gradient then leans on the critic's values of states that do not tell the whole
 /// story, and the shorter the eligibility, the more: with images on the twin, at `lambda` 0.8 the
 /// yaw gain of some seeds moves away from the twin's limit; at 1 (returns, not bootstrapped values)
-/// it moves towards it. The default is step one's 0.8 until the twin's limit can be checked against
-/// what step two reaches at 1 (DESIGN.md, "The learner on the vehicle").
+/// it moves towards it. The default is 1 (DESIGN.md, "The learner on the vehicle"); a checkpoint
+/// saved before step two had a rate of its own loads with it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct StepTwoParams {
@@ -280,7 +280,7 @@ pub struct StepTwoParams {
 
 impl Default for StepTwoParams {
     fn default() -> Self {
-        StepTwoParams { lambda: 0.8 }
+        StepTwoParams { lambda: 1.0 }
     }
 }
 
