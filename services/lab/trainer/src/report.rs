@@ -20,7 +20,7 @@
 
 use crate::evaluation::gap_closed;
 use crate::figures::{Fig5, PolicyMap, write_json};
-use crate::twin_limit::{self, Beaten, Candidate, beaten};
+use crate::twin_limit::{Beaten, Candidate, beaten};
 use anyhow::{Context, Result, bail};
 use config::{Dof, PerDof, Scenario};
 use learning::checkpoint::Checkpoint;
@@ -83,8 +83,8 @@ pub struct HeldOutSummary {
     pub limit: HeldOutPolicy,
     /// The gap closed on them (their mean returns).
     pub gap_closed: PerDof<f64>,
-    /// The evaluation's noise on a difference: the largest spread over the sets of a difference
-    /// between two policies evaluated there.
+    /// The evaluation's noise on a difference the limit's check allowed: the largest spread over
+    /// the sets of a difference between two policies its run evaluated there before its search.
     pub noise: PerDof<f64>,
 }
 
@@ -289,6 +289,16 @@ fn read_held_out(limit_json: &serde_json::Value) -> Result<Option<(Vec<u64>, Vec
     Ok(Some((sets, policies)))
 }
 
+/// The noise the limit's check allowed, as `limit.json` records it (`null`: not measured).
+fn recorded_check_noise(limit_json: &serde_json::Value) -> Result<PerDof<f64>> {
+    let n: PerDof<Option<f64>> = serde_json::from_value(limit_json["check"]["noise"].clone())
+        .context("twin-limit/limit.json: check.noise")?;
+    Ok(PerDof {
+        sway: n.sway.unwrap_or(f64::NAN),
+        yaw: n.yaw.unwrap_or(f64::NAN),
+    })
+}
+
 /// Writes the report of `dir`; returns the path of `report.md`.
 pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
     let out = dir.join("report");
@@ -338,11 +348,9 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
                 gap_closed: per_dof(&|d| {
                     gap_closed(*s.mean.get(d), *a.mean.get(d), *l.mean.get(d))
                 }),
-                // The check's noise as the limit's run measured it: every policy it evaluated on
-                // the held-out sets (the search's start among them).
-                noise: twin_limit::difference_noise(
-                    &policies.iter().map(|p| &p.returns).collect::<Vec<_>>(),
-                ),
+                // The noise the limit's run checked with (its candidates and the search's start on
+                // these sets), as it recorded it: the report judges as the run did.
+                noise: recorded_check_noise(&limit_json)?,
                 sets,
                 sim_policy: s,
                 after: a,
@@ -636,7 +644,7 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
         writeln!(
             md,
             "\nGap closed on them: yaw {:.0}%, sway {:.0}%; the evaluation's noise on a difference (the largest spread over \
-             the sets of a difference between two policies the limit's run evaluated there): yaw {:.4}, sway {:.4}.\n",
+             the sets of a difference between two policies the limit's run evaluated there before its search): yaw {:.4}, sway {:.4}.\n",
             100.0 * h.gap_closed.yaw,
             100.0 * h.gap_closed.sway,
             h.noise.yaw,

@@ -28,7 +28,7 @@
 //! table) the unsplit run gives.
 
 use crate::Perceiver;
-use crate::evaluation::{Evaluation, evaluate, gap_closed, policy_checkpoint, spread};
+use crate::evaluation::{Evaluation, evaluate, gap_closed, policy_checkpoint};
 use crate::experiment::parallel_map_on;
 use crate::progress::Progress;
 use crate::twin_limit::{self, Beaten, Candidate, Check, Round, SearchParams};
@@ -166,7 +166,7 @@ impl SeedResult {
     /// The spread of `after - sim` over the held-out sets: the evaluation's noise on the
     /// improvement.
     pub fn difference_noise(&self, dof: Dof) -> f64 {
-        difference_noise(self.held_out_sim.get(dof), self.held_out_after.get(dof))
+        *twin_limit::difference_noise(&[&self.held_out_sim, &self.held_out_after]).get(dof)
     }
 
     /// The mean improvement `after - sim` over the held-out sets (none without them).
@@ -201,12 +201,6 @@ impl SeedResult {
     pub fn limit_is_beaten(&self) -> bool {
         self.limit_beaten.sway.is_some() || self.limit_beaten.yaw.is_some()
     }
-}
-
-/// The spread over sets of `after - sim` (NaN under two sets).
-fn difference_noise(sim: &[f64], after: &[f64]) -> f64 {
-    let d: Vec<f64> = after.iter().zip(sim).map(|(a, s)| a - s).collect();
-    spread(&d)
 }
 
 /// Step one: the trainer's episodes seeing through `eyes`, as the checkpoint step two loads (with
