@@ -367,20 +367,28 @@ fn the_two_step_job_over_mavlink_flies_what_one_process_flies() {
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let trials = summary["evaluation"]["trials"].as_u64().unwrap() as u32;
+    // Each DOF's limit is its own pair's (twin-limit/sway, twin-limit/yaw).
     for (policies, part) in [
-        ("step-one", "sim_policy"),
-        ("twin-limit", "limit"),
-        ("step-two", "after"),
+        (PerDof::both("step-one"), "sim_policy"),
+        (
+            PerDof {
+                sway: "twin-limit/sway",
+                yaw: "twin-limit/yaw",
+            },
+            "limit",
+        ),
+        (PerDof::both("step-two"), "after"),
     ] {
-        let c = load_policies(&out.join(policies)).unwrap();
-        let j = evaluate(&scenario, &twin, Eyes::Images, &c, SEED, trials)
-            .unwrap()
-            .mean();
         let stated = PerDof {
             sway: summary["evaluation"][part]["sway"].as_f64().unwrap(),
             yaw: summary["evaluation"][part]["yaw"].as_f64().unwrap(),
         };
         for dof in Dof::ALL {
+            let policies = *policies.get(dof);
+            let c = load_policies(&out.join(policies)).unwrap();
+            let j = evaluate(&scenario, &twin, Eyes::Images, &c, SEED, trials)
+                .unwrap()
+                .mean();
             assert!(
                 near(*j.get(dof), *stated.get(dof)),
                 "{policies} {dof}: in one process {}, over MAVLink {}",

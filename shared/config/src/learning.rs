@@ -35,6 +35,22 @@ impl<T> PerDof<T> {
             Dof::Yaw => &mut self.yaw,
         }
     }
+
+    /// A value for each DOF, made by `f` (sway first).
+    pub fn from_fn(mut f: impl FnMut(Dof) -> T) -> Self {
+        PerDof {
+            sway: f(Dof::Sway),
+            yaw: f(Dof::Yaw),
+        }
+    }
+
+    /// Each DOF's value through `f`.
+    pub fn map<U>(&self, mut f: impl FnMut(Dof, &T) -> U) -> PerDof<U> {
+        PerDof {
+            sway: f(Dof::Sway, &self.sway),
+            yaw: f(Dof::Yaw, &self.yaw),
+        }
+    }
 }
 
 /// A named set of learning parameters.

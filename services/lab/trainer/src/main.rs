@@ -15,7 +15,7 @@ use trainer::experiment::{self, Curve};
 use trainer::figures::{Alphas, Fig5, PolicyMap, write_json};
 use trainer::progress::Progress;
 use trainer::step_two_bench::{BenchFile, BenchParams, Shard, Timing, evaluation_json};
-use trainer::twin_limit::SearchParams;
+use trainer::twin_limit::{LimitGains, SearchParams};
 use trainer::world::{EpisodeResult, World};
 
 #[derive(Parser)]
@@ -142,9 +142,10 @@ enum Command {
         #[arg(long)]
         dir: PathBuf,
     },
-    /// The twin's limit: the best linear policy of each DOF on a twin, by direct policy search on the
-    /// twin in one process (the cross-entropy method from the LQR gains, common random numbers),
-    /// written as a policy directory (DIR/sway.ckpt, DIR/yaw.ckpt: `--initial` loads them) and
+    /// The twin's limit: each DOF's best return a linear policy can have on a twin, by direct policy
+    /// search over all four gains on the twin in one process (the cross-entropy method from the LQR
+    /// gains, common random numbers), written as two policy directories, each DOF's pair
+    /// (DIR/sway/ and DIR/yaw/, each with sway.ckpt and yaw.ckpt: `--initial` loads one), and
     /// DIR/limit.json (gains, returns, the evaluation set, the check). Search with the eyes the
     /// evaluations use (`--eyes images` for the vehicle's perception): a limit found with other eyes
     /// is no limit for them. Policies given as candidates (`--candidate`, `--session`; from the LQR
@@ -961,7 +962,7 @@ fn session_policies(path: &std::path::Path) -> Result<Vec<(String, PerDof<[f64; 
     Ok(policies)
 }
 
-/// `trainer twin-limit`; returns the limit's policies.
+/// `trainer twin-limit`; returns the limit (each DOF's pair).
 fn twin_limit(
     setup: &Setup,
     twin_path: &std::path::Path,
@@ -969,7 +970,7 @@ fn twin_limit(
     seed: u64,
     search: &SearchParams,
     given: &LimitInputs,
-) -> Result<Checkpoint> {
+) -> Result<LimitGains> {
     use trainer::step_two_bench::gains;
     use trainer::twin_limit::{Candidate, Check};
     let twin = load_twin(twin_path)?;
@@ -1058,7 +1059,7 @@ fn twin_limit(
         scenario,
         learning,
         &twin,
-        start_gains,
+        PerDof::both(start_gains),
         &scored,
         search,
         &Check {
@@ -1070,14 +1071,16 @@ fn twin_limit(
         &progress,
     )?;
     progress.finish();
-    let limit = policy_checkpoint(scenario, learning, found.gains);
-    if !sets.is_empty() {
+    let pairs = found
+        .gains()
+        .map(|_, g| policy_checkpoint(scenario, learning, *g));
+    for dof in Dof::ALL.into_iter().filter(|_| !sets.is_empty()) {
         held.push(held_out(
             setup,
             &twin,
             search.eyes,
-            "limit",
-            &limit,
+            &format!("limit for {dof}"),
+            pairs.get(dof),
             &sets,
             e,
         )?);
@@ -1090,41 +1093,42 @@ fn twin_limit(
         seed,
         e,
     )?;
-    save_policies(out, &limit)?;
-    let (m, l) = (found.evaluation.mean(), lqr_eval.mean());
     for dof in Dof::ALL {
+        save_policies(&out.join(dof.to_string()), pairs.get(dof))?;
+    }
+    let (m, l) = (found.returns(), lqr_eval.mean());
+    for dof in Dof::ALL {
+        let g = found.get(dof).gains;
         cli::outln!(
-            "{dof:>4}: limit K = [{:7.3}, {:7.3}]  evaluated return {:9.4}   (LQR K = [{:7.3}, {:7.3}]: {:9.4})",
-            found.gains.get(dof)[0],
-            found.gains.get(dof)[1],
+            "{dof:>4}: limit {:9.4} with sway K = [{:7.3}, {:7.3}], yaw K = [{:7.3}, {:7.3}]   (LQR: {:9.4})",
             m.get(dof),
-            lqr.get(dof)[0],
-            lqr.get(dof)[1],
+            g.sway[0],
+            g.sway[1],
+            g.yaw[0],
+            g.yaw[1],
             l.get(dof)
         )?;
     }
+    let rounds = found.rounds();
     cli::outln!(
-        "evaluation set: seed {seed}, {e} trials; cable lost in {} of them; {} rounds, {} policies evaluated in {:.1} s",
-        found.evaluation.lost,
-        found.rounds.len(),
-        found
-            .rounds
-            .iter()
-            .map(|r| r.found.evaluations)
-            .sum::<usize>(),
+        "evaluation set: seed {seed}, {e} trials; cable lost by sway's pair in {}, by yaw's in {}; {} rounds, {} policies evaluated in {:.1} s",
+        found.lost().sway,
+        found.lost().yaw,
+        rounds.len(),
+        rounds.iter().map(|r| r.found.evaluations).sum::<usize>(),
         started.elapsed().as_secs_f64()
     )?;
     for dof in Dof::ALL {
         let best = scored
             .iter()
             .max_by(|a, b| a.evaluated.get(dof).total_cmp(b.evaluated.get(dof)));
-        match (found.beaten.get(dof), best) {
+        match (&found.get(dof).beaten, best) {
             (Some(b), _) => cli::outln!(
                 "{dof:>4}: check: BEATEN by {} by {:.4} (noise {:.4}) after {} rounds",
                 b.by,
                 b.margin,
                 b.noise,
-                found.rounds.len()
+                found.get(dof).rounds.len()
             )?,
             (None, Some(c)) => cli::outln!(
                 "{dof:>4}: check: above every candidate beyond the noise (best: {} at {:.4}, noise {:.4})",
@@ -1152,22 +1156,40 @@ fn twin_limit(
         &serde_json::json!({
             "twin": twin_path,
             "eyes": search.eyes,
-            "gains": found.gains,
-            "evaluation": evaluation_json(&found.evaluation),
+            "gains": found.gains(),
+            "returns": found.returns(),
+            "evaluation": found.0.map(|_, l| evaluation_json(&l.evaluation)),
             "lqr": { "gains": lqr, "evaluation": evaluation_json(&lqr_eval) },
-            "search": { "params": search, "rounds": found.rounds },
-            "check": { "candidates": scored, "noise": noise, "beaten": found.beaten },
+            "search": { "params": search, "rounds": rounds },
+            "check": { "candidates": scored, "noise": noise, "beaten": found.beaten() },
             "held_out": { "sets": sets, "policies": held },
         }),
     )
     .with_context(|| format!("writing {}", json.display()))?;
     cli::outln!(
-        "wrote {}/sway.ckpt, {}/yaw.ckpt and {}",
-        out.display(),
+        "wrote {0}/sway/ and {0}/yaw/ (each DOF's limit pair: sway.ckpt, yaw.ckpt) and {1}",
         out.display(),
         json.display()
     )?;
-    Ok(limit)
+    Ok(found.gains())
+}
+
+/// A limit written by `trainer twin-limit`: each DOF's pair, from DIR/sway and DIR/yaw.
+fn load_limit(dir: &std::path::Path) -> Result<LimitGains> {
+    let pair = |dof: Dof| -> Result<PerDof<[f64; 2]>> {
+        let d = dir.join(dof.to_string());
+        if !d.is_dir() {
+            bail!(
+                "{}: no {dof}/ directory: a limit is each DOF's pair in DIR/sway/ and DIR/yaw/, as `trainer twin-limit --out DIR` writes it",
+                dir.display()
+            );
+        }
+        Ok(trainer::step_two_bench::gains(&load_policies(&d)?))
+    };
+    Ok(PerDof {
+        sway: pair(Dof::Sway)?,
+        yaw: pair(Dof::Yaw)?,
+    })
 }
 
 /// `trainer step-two-bench`.
@@ -1185,7 +1207,7 @@ fn step_two_bench(
     plan(setup, params.trials, Some(twin_path))?;
     let started = Instant::now();
     let limit = match limit_dir {
-        Some(dir) => load_policies(dir)?,
+        Some(dir) => load_limit(dir)?,
         None => {
             let dir = json.with_extension("limit");
             // As `trainer twin-limit --rounds R` searches it (the shards of a run search it so).
@@ -1234,7 +1256,7 @@ fn step_two_bench(
         scenario: setup.scenario.clone(),
         learning: setup.learning.clone(),
         params: params.clone(),
-        limit: trainer::step_two_bench::gains(&limit),
+        limit,
         shard,
         summary: trainer::step_two_bench::summary(&results),
         seeds: results,

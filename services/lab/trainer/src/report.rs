@@ -4,13 +4,13 @@
 //! ```text
 //! DIR/fig5/fig5.json                 step one's learning curves over 100 runs (trainer fig5)
 //! DIR/step-one/run.json, *.ckpt      step one through the mesh: per-episode returns, the policies
-//! DIR/twin-limit/limit.json, *.ckpt  the twin's limit (trainer twin-limit: searched with images,
-//!                                    checked against the simulation policy and step two's; the
-//!                                    three policies on held-out sets, with the cables lost)
+//! DIR/twin-limit/limit.json          the twin's limit (trainer twin-limit: searched with images,
+//! DIR/twin-limit/{sway,yaw}/*.ckpt   each DOF's pair; checked against the simulation policy and
+//!                                    step two's; the policies on held-out sets, with the cables lost)
 //! DIR/eval-sim/run.json              evaluations through the vehicle mesh (the evaluation set: the
 //! DIR/eval/run.json, trace.jsonl     twin's first start marks, fixed noise, not learning): the
-//! DIR/eval-limit/run.json            simulation policy with the reality gap off, the simulation
-//!                                    policy on the vehicle (twin), the twin's limit on it,
+//! DIR/eval-limit-sway/run.json       simulation policy with the reality gap off, the simulation
+//! DIR/eval-limit-yaw/run.json        policy on the vehicle (twin), each DOF's limit pair on it,
 //! DIR/eval-after/run.json            the policy step two ended with
 //! DIR/step-two/run.json, trace.jsonl, *.ckpt   step two on the vehicle: learning trials and the
 //!                                    session's own evaluations
@@ -20,7 +20,7 @@
 
 use crate::evaluation::gap_closed;
 use crate::figures::{Fig5, PolicyMap, write_json};
-use crate::twin_limit::{Beaten, Candidate, beaten};
+use crate::twin_limit::{Beaten, Candidate, LimitGains, beaten};
 use anyhow::{Context, Result, bail};
 use config::{Dof, PerDof, Scenario};
 use learning::checkpoint::Checkpoint;
@@ -43,7 +43,7 @@ pub struct Summary {
     /// The simulation policy from the vehicle's starts with the reality gap off, when it was run.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sim_from_vehicle_starts: Option<Returns>,
-    /// The twin's limit: its evaluated returns and its gains.
+    /// The twin's limit: its evaluated returns and each DOF's pair.
     pub twin_limit: TwinLimit,
     /// The evaluations (the protocol: the evaluation set, not learning).
     pub evaluation: Evaluations,
@@ -80,6 +80,7 @@ pub struct HeldOutSummary {
     pub sets: Vec<u64>,
     pub sim_policy: HeldOutPolicy,
     pub after: HeldOutPolicy,
+    /// Each DOF's return under its own limit pair (the cables and trials: both pairs').
     pub limit: HeldOutPolicy,
     /// The gap closed on them (their mean returns).
     pub gap_closed: PerDof<f64>,
@@ -103,7 +104,7 @@ pub struct LimitCheck {
 pub struct TwinLimit {
     pub yaw: f64,
     pub sway: f64,
-    pub gains: PerDof<[f64; 2]>,
+    pub gains: LimitGains,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -252,12 +253,12 @@ pub fn gap_is_noise(sim: f64, limit: f64) -> bool {
 }
 
 /// The limit against the simulation policy and step two's on one set (each evaluated return with
-/// the trials in which it lost the cable): per DOF, the one above it by more than twice `noise` (see
-/// [`crate::twin_limit::beaten`]).
+/// the trials in which it lost the cable; the limit's per DOF, each its own pair's): per DOF, the
+/// one above it by more than twice `noise` (see [`crate::twin_limit::beaten`]).
 pub fn limit_check(
     sim: (PerDof<f64>, u32),
     after: (PerDof<f64>, u32),
-    limit: (PerDof<f64>, u32),
+    limit: (PerDof<f64>, PerDof<u32>),
     noise: PerDof<f64>,
 ) -> PerDof<Option<Beaten>> {
     let policies = [("the simulation policy", sim), ("step two's policy", after)].map(
@@ -289,6 +290,24 @@ fn read_held_out(limit_json: &serde_json::Value) -> Result<Option<(Vec<u64>, Vec
     Ok(Some((sets, policies)))
 }
 
+/// The limit on the held-out sets from each DOF's pair there: each DOF's returns under its own
+/// pair, the cables and trials of both.
+fn limit_on_sets(sway: &HeldOutPolicy, yaw: &HeldOutPolicy) -> HeldOutPolicy {
+    HeldOutPolicy {
+        name: "limit".to_owned(),
+        returns: PerDof {
+            sway: sway.returns.sway.clone(),
+            yaw: yaw.returns.yaw.clone(),
+        },
+        mean: PerDof {
+            sway: sway.mean.sway,
+            yaw: yaw.mean.yaw,
+        },
+        lost: sway.lost + yaw.lost,
+        trials: sway.trials + yaw.trials,
+    }
+}
+
 /// The noise the limit's check allowed, as `limit.json` records it (`null`: not measured).
 fn recorded_check_noise(limit_json: &serde_json::Value) -> Result<PerDof<f64>> {
     let n: PerDof<Option<f64>> = serde_json::from_value(limit_json["check"]["noise"].clone())
@@ -305,12 +324,16 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let sim: RunRecord = read_json(&dir.join("step-one/run.json"))?;
     let eval: RunRecord = read_json(&dir.join("eval/run.json"))?;
-    let eval_limit: RunRecord = read_json(&dir.join("eval-limit/run.json"))?;
+    let eval_limit = PerDof {
+        sway: read_json::<RunRecord>(&dir.join("eval-limit-sway/run.json"))?,
+        yaw: read_json::<RunRecord>(&dir.join("eval-limit-yaw/run.json"))?,
+    };
+    let limit_lost = eval_limit.map(|_, r| lost_in(r));
     let eval_after: RunRecord = read_json(&dir.join("eval-after/run.json"))?;
     let session: RunRecord = read_json(&dir.join("step-two/run.json"))?;
     let limit_json: serde_json::Value = read_json(&dir.join("twin-limit/limit.json"))?;
-    let limit_gains: PerDof<[f64; 2]> = serde_json::from_value(limit_json["gains"].clone())
-        .context("twin-limit/limit.json: gains")?;
+    let limit_gains: LimitGains = serde_json::from_value(limit_json["gains"].clone())
+        .context("twin-limit/limit.json: gains (each DOF's pair)")?;
     if session.evaluations.is_empty() {
         bail!(
             "{}: step two evaluated nothing (learning.toml's evaluation.trials is 0?)",
@@ -321,7 +344,7 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
     let (j_sim, j_after, j_limit) = (
         evaluated(&eval),
         evaluated(&eval_after),
-        evaluated(&eval_limit),
+        eval_limit.map(|dof, r| *evaluated(r).get(dof)),
     );
     let per_dof = |f: &dyn Fn(Dof) -> f64| PerDof {
         sway: f(Dof::Sway),
@@ -343,7 +366,8 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
                     .cloned()
                     .with_context(|| format!("twin-limit/limit.json: no held-out policy `{name}`"))
             };
-            let (s, a, l) = (find("sim")?, find("after")?, find("limit")?);
+            let (s, a) = (find("sim")?, find("after")?);
+            let l = limit_on_sets(&find("limit for sway")?, &find("limit for yaw")?);
             Some(HeldOutSummary {
                 gap_closed: per_dof(&|d| {
                     gap_closed(*s.mean.get(d), *a.mean.get(d), *l.mean.get(d))
@@ -367,7 +391,7 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
         beaten: limit_check(
             (j_sim, lost_in(&eval)),
             (j_after, lost_in(&eval_after)),
-            (j_limit, lost_in(&eval_limit)),
+            (j_limit, limit_lost),
             check_noise,
         ),
         searched_with: limit_json["eyes"].as_str().map(str::to_owned),
@@ -583,24 +607,31 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
     writeln!(
         md,
         "\nCable lost on the evaluation set: the simulation policy in {} of {} trials, after step two in {}, the twin's \
-         limit in {} (a trial cut short by a lost cable costs less than a whole one: a return with cables lost is a \
+         limit pairs in {} (yaw's) and {} (sway's) (a trial cut short by a lost cable costs less than a whole one: a return with cables lost is a \
          failed policy's).",
         lost_in(&eval),
         eval.episodes,
         lost_in(&eval_after),
-        lost_in(&eval_limit)
+        limit_lost.yaw,
+        limit_lost.sway
     )?;
     writeln!(
         md,
-        "\nThe twin's limit: sway K = [{:.3}, {:.3}], yaw K = [{:.3}, {:.3}] (direct policy search on the twin with {} \
+        "\nThe twin's limit is each DOF's best return over all four gains (direct policy search on the twin with {} \
          perception, the simulation policy and every policy step two evaluated in its first generation, \
-         `twin-limit/limit.json`).",
-        limit_gains.sway[0],
-        limit_gains.sway[1],
-        limit_gains.yaw[0],
-        limit_gains.yaw[1],
+         `twin-limit/limit.json`): where the DOFs pull apart, no pair has both, so no policy need close the gap in \
+         both DOFs at once.\n",
         limit_check.searched_with.as_deref().unwrap_or("unknown")
     )?;
+    for dof in [Dof::Yaw, Dof::Sway] {
+        let g = limit_gains.get(dof);
+        writeln!(
+            md,
+            "- {dof}'s limit pair: sway K = [{:.3}, {:.3}], yaw K = [{:.3}, {:.3}]",
+            g.sway[0], g.sway[1], g.yaw[0], g.yaw[1]
+        )?;
+    }
+    writeln!(md)?;
     for dof in [Dof::Yaw, Dof::Sway] {
         let n = *limit_check.noise.get(dof);
         let n_text = if n.is_finite() {
@@ -838,7 +869,7 @@ mod tests {
     fn the_report_says_when_a_policy_beats_the_limit() {
         let j = |sway, yaw| PerDof { sway, yaw };
         let noise = j(0.01, 0.1);
-        let limit = (j(-1.0, -5.0), 0);
+        let limit = (j(-1.0, -5.0), PerDof::both(0));
         // The simulation policy above the limit in yaw by 0.3 > 2 x 0.1: beaten, by it.
         let c = limit_check((j(-1.5, -4.7), 0), (j(-1.1, -5.1), 0), limit, noise);
         assert!(c.sway.is_none());

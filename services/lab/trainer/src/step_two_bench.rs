@@ -31,7 +31,7 @@ use crate::Perceiver;
 use crate::evaluation::{Evaluation, evaluate, gap_closed, policy_checkpoint};
 use crate::experiment::parallel_map_on;
 use crate::progress::Progress;
-use crate::twin_limit::{self, Beaten, Candidate, Check, Round, SearchParams};
+use crate::twin_limit::{self, Beaten, Candidate, Check, LimitGains, Round, SearchParams};
 use crate::twin_world::{FromCheckpointError, Mode, TrialResult, TwinWorld};
 use crate::world::World;
 use config::{Dof, Eyes, LearningParams, PerDof, Scenario, TwinParams, derive_seed};
@@ -115,11 +115,12 @@ pub struct SeedResult {
     pub every_trial: Vec<CurvePoint>,
     pub sim: PerDof<f64>,
     pub after: PerDof<f64>,
+    /// Each DOF's limit: its return under its own pair.
     pub limit: PerDof<f64>,
-    /// The row's limit: the bench's, or where a policy of the seed beat it, the one its search
-    /// found going on from there if less beaten than the bench's (`limit_rounds`: the search's
-    /// rounds; none when the bench's held).
-    pub limit_gains: PerDof<[f64; 2]>,
+    /// The row's limit, each DOF's pair: the bench's, or where a policy of the seed beat it in the
+    /// DOF, the one its search found going on from there if less beaten than the bench's
+    /// (`limit_rounds`: the searches' rounds, each naming its DOF; none when the bench's held).
+    pub limit_gains: LimitGains,
     pub limit_rounds: Vec<Round>,
     /// The bench's limit evaluated on the seed's set (the row's `limit` where its search did not go
     /// on).
@@ -141,7 +142,8 @@ pub struct SeedResult {
     pub refused: PerDof<u64>,
     pub bounded: PerDof<u64>,
     /// On the held-out sets: the simulation policy's, the final policy's and the row's limit's
-    /// evaluated returns, and the cables they lost there (of `held_out_trials` trials each).
+    /// evaluated returns (each DOF's under its own pair), and the cables they lost there (of
+    /// `held_out_trials` trials each; the limit's: both pairs').
     pub held_out_sim: PerDof<Vec<f64>>,
     pub held_out_after: PerDof<Vec<f64>>,
     pub held_out_limit: PerDof<Vec<f64>>,
@@ -314,12 +316,12 @@ pub fn candidates(
     c
 }
 
-/// Runs one seed (see the module docs); `limit` is the bench's limit policy.
+/// Runs one seed (see the module docs); `limit` is the bench's limit (each DOF's pair).
 pub fn run_seed(
     scenario: &Scenario,
     learning: &LearningParams,
     twin: &TwinParams,
-    limit: &Checkpoint,
+    limit: &LimitGains,
     params: &BenchParams,
     seed: u64,
 ) -> Result<SeedResult, FromCheckpointError> {
@@ -381,50 +383,76 @@ pub fn run_seed(
         sway: evals.iter().map(|v| v.mean().sway).collect::<Vec<_>>(),
         yaw: evals.iter().map(|v| v.mean().yaw).collect::<Vec<_>>(),
     };
-    let held_bench_limit = on_sets(limit)?;
-    let (held_sim_j, held_after_j) = (means(&held_sim), means(&held_after));
-    let noise =
-        twin_limit::difference_noise(&[&held_sim_j, &held_after_j, &means(&held_bench_limit)]);
-
-    // The limit: the bench's, unless a policy of this row beats it beyond the noise.
-    let bench_limit = evaluate(scenario, twin, params.eyes, limit, seed, e)?;
-    let candidates = candidates(&curve, &every_trial, final_gains, j_after);
-    let beaten = twin_limit::beaten(bench_limit.mean(), bench_limit.lost, &candidates, noise);
-    let (limit_gains, j_limit, limit_rounds, limit_beaten) =
-        if beaten.sway.is_some() || beaten.yaw.is_some() {
-            let found = twin_limit::find(
-                scenario,
-                learning,
-                twin,
-                gains(limit),
-                &candidates,
-                &params.seed_search(seed),
-                &Check {
-                    seed,
-                    trials: e,
-                    noise,
-                },
-                params.limit_rounds,
-                &Progress::hidden(),
-            )?;
-            let j = found.evaluation.mean();
-            if twin_limit::shortfall(&j, &found.beaten)
-                < twin_limit::shortfall(&bench_limit.mean(), &beaten)
-            {
-                (found.gains, j, found.rounds, found.beaten)
-            } else {
-                // Where the DOFs pull apart (a sway policy that costs yaw), the search's every round
-                // can end further below a candidate than the bench's limit was: that one stays.
-                (gains(limit), bench_limit.mean(), found.rounds, beaten)
-            }
-        } else {
-            (gains(limit), bench_limit.mean(), Vec::new(), beaten)
-        };
-    let held_limit = if limit_gains != gains(limit) {
-        on_sets(&policy_checkpoint(scenario, learning, limit_gains))?
-    } else {
-        held_bench_limit
+    // The bench's limit: each DOF's pair, on the held-out sets and on the seed's set.
+    let bench_pairs = limit.map(|_, g| policy_checkpoint(scenario, learning, *g));
+    let held_bench_limit = PerDof {
+        sway: on_sets(&bench_pairs.sway)?,
+        yaw: on_sets(&bench_pairs.yaw)?,
     };
+    let (held_sim_j, held_after_j) = (means(&held_sim), means(&held_after));
+    let noise = twin_limit::difference_noise(&[
+        &held_sim_j,
+        &held_after_j,
+        &means(&held_bench_limit.sway),
+        &means(&held_bench_limit.yaw),
+    ]);
+    let bench_limit = PerDof {
+        sway: evaluate(scenario, twin, params.eyes, &bench_pairs.sway, seed, e)?,
+        yaw: evaluate(scenario, twin, params.eyes, &bench_pairs.yaw, seed, e)?,
+    };
+    let bench_j = bench_limit.map(|dof, v| *v.mean().get(dof));
+
+    // Each DOF's limit: the bench's, unless a policy of this row beats it beyond the noise.
+    let candidates = candidates(&curve, &every_trial, final_gains, j_after);
+    let mut limit_gains = *limit;
+    let mut j_limit = bench_j;
+    let mut limit_rounds = Vec::new();
+    let mut limit_beaten = PerDof::default();
+    let mut held_limit = PerDof::default();
+    for dof in Dof::ALL {
+        let bench_pair = bench_limit.get(dof);
+        let beaten = twin_limit::beaten_in(
+            dof,
+            *bench_j.get(dof),
+            bench_pair.lost,
+            &candidates,
+            *noise.get(dof),
+        );
+        *limit_beaten.get_mut(dof) = beaten.clone();
+        *held_limit.get_mut(dof) = held_bench_limit.get(dof).clone();
+        if beaten.is_none() {
+            continue;
+        }
+        let found = twin_limit::find_in(
+            scenario,
+            learning,
+            twin,
+            dof,
+            *limit.get(dof),
+            &candidates,
+            &params.seed_search(seed),
+            &Check {
+                seed,
+                trials: e,
+                noise,
+            },
+            params.limit_rounds,
+            &Progress::hidden(),
+        )?;
+        limit_rounds.extend(found.rounds.iter().cloned());
+        let j = *found.evaluation.mean().get(dof);
+        // The search's every round can end further below a candidate than the bench's limit was
+        // (a larger search set need not evaluate higher here): the less beaten stays.
+        if twin_limit::shortfall(j, found.beaten.as_ref())
+            < twin_limit::shortfall(*bench_j.get(dof), beaten.as_ref())
+        {
+            *limit_gains.get_mut(dof) = found.gains;
+            *j_limit.get_mut(dof) = j;
+            *limit_beaten.get_mut(dof) = found.beaten;
+            *held_limit.get_mut(dof) =
+                on_sets(&policy_checkpoint(scenario, learning, found.gains))?;
+        }
+    }
     let lost = |evals: &[Evaluation]| evals.iter().map(|v| v.lost).sum();
 
     let closed = |dof: Dof| gap_closed(*j_sim.get(dof), *j_after.get(dof), *j_limit.get(dof));
@@ -455,7 +483,7 @@ pub fn run_seed(
         limit: j_limit,
         limit_gains,
         limit_rounds,
-        bench_limit: bench_limit.mean(),
+        bench_limit: bench_j,
         limit_beaten,
         check_noise: noise,
         gap_closed: PerDof {
@@ -470,11 +498,11 @@ pub fn run_seed(
         bounded: last_trial.bounded,
         held_out_sim: held_sim_j,
         held_out_after: held_after_j,
-        held_out_limit: means(&held_limit),
+        held_out_limit: PerDof::from_fn(|dof| means(held_limit.get(dof)).get(dof).clone()),
         held_out_lost: HeldOutLost {
             sim: lost(&held_sim),
             after: lost(&held_after),
-            limit: lost(&held_limit),
+            limit: lost(&held_limit.sway) + lost(&held_limit.yaw),
         },
         held_out_trials: params.held_out * e,
     })
@@ -487,7 +515,7 @@ pub fn run(
     scenario: &Scenario,
     learning: &LearningParams,
     twin: &TwinParams,
-    limit: &Checkpoint,
+    limit: &LimitGains,
     params: &BenchParams,
     seeds: &[u64],
     threads: usize,
@@ -791,8 +819,8 @@ pub struct BenchFile {
     pub scenario: Scenario,
     pub learning: LearningParams,
     pub params: BenchParams,
-    /// The bench's limit (every row's, unless the row's search went on).
-    pub limit: PerDof<[f64; 2]>,
+    /// The bench's limit, each DOF's pair (every row's, unless the row's search went on).
+    pub limit: LimitGains,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shard: Option<Shard>,
     /// Recomputed from the rows when a file is read.

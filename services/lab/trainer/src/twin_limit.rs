@@ -1,14 +1,18 @@
-//! The twin's limit: the best linear policy of each DOF on a given twin, found by direct policy search
-//! on the twin itself (in one process), both DOFs together since they interact through the
-//! allocator, the current and the camera's mount.
+//! The twin's limit: for each DOF, the best return a linear policy can have on a given twin, found by
+//! direct policy search on the twin itself (in one process). The DOFs interact through the
+//! allocator, the current and the camera's mount, so a DOF's best return is searched over all four
+//! gains, and each DOF has its own limit pair: where the DOFs pull apart (sway's best gains cost yaw)
+//! no single pair is best in both, and a pair each DOF's gains answer the other's with can sit below
+//! a pair of other gains in both DOFs at once. The limit per DOF is above every pair by
+//! construction: the gap a policy closes is always a share of a real gap (which no pair need close
+//! in both DOFs at once).
 //!
-//! **The method**: the cross-entropy method over the four gains, started at the LQR gains of the
-//! identified model. Each generation samples a population of gain vectors from a Gaussian (the
-//! current mean among them), evaluates every one by the evaluation protocol on one *search set*
+//! **The method**: per DOF, the cross-entropy method over the four gains, started at the LQR gains
+//! of the identified model. Each generation samples a population of gain vectors from a Gaussian
+//! (the current mean among them), evaluates every one by the evaluation protocol on one *search set*
 //! ([`crate::evaluation`]: the same starts, the same frame and exploration noise for all, so the
-//! candidates differ by their gains only), and refits the Gaussian to the best quarter. Each DOF's
-//! two gains are refitted to the candidates best *for that DOF* (its own return), so each DOF
-//! converges to its best answer to the other's policy, with no weighting of the two returns.
+//! candidates differ by their gains only), and refits the Gaussian to the quarter best for that DOF
+//! (its own return).
 //!
 //! Why this method: the objective is a simulation with clipping, saturation and a cable that can be
 //! lost (a cliff in the return), so it has no useful gradient and is not smooth; the cross-entropy
@@ -22,14 +26,14 @@
 //! **A limit is a limit** ([`find`]): every policy evaluated beside it (the simulation policy, each
 //! policy step two evaluated) is a *candidate*. The candidates join the search's first generation,
 //! so the search starts from the best of them, and the search never ends below the best first
-//! member of a DOF on the search set. The limit found is then checked on the evaluation set against
+//! member on the search set. A DOF's limit found is then checked on the evaluation set against
 //! every candidate: where one beats it by more than twice the evaluation's noise on a difference,
-//! the search goes on from it (a new round: the beaters in its first generation, a fresh search set
-//! twice the size, which tells policies apart that the last could not). The limit is then the
-//! round's limit least beaten on the evaluation set (a larger search set need not evaluate higher
-//! there); still beaten, it says so ([`Limit::beaten`]): the report shows by what and by how much.
-//! The noise the check allows is [`difference_noise`]'s: how much a difference between two policies
-//! of different gains moves over held-out sets.
+//! that DOF's search goes on from it (a new round: the beaters in its first generation, a fresh
+//! search set twice the size, which tells policies apart that the last could not). The DOF's limit
+//! is then the round's limit least beaten on the evaluation set (a larger search set need not
+//! evaluate higher there); still beaten, it says so ([`DofLimit::beaten`]): the report shows by what
+//! and by how much. The noise the check allows is [`difference_noise`]'s: how much a difference
+//! between two policies of different gains moves over held-out sets.
 
 use crate::evaluation::{Evaluation, evaluate, policy_checkpoint, spread};
 use crate::experiment::parallel_map;
@@ -81,9 +85,11 @@ pub struct Generation {
     pub mean_lost: u32,
 }
 
-/// What the search found.
+/// What the search found: the pair of gains best for one DOF.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Found {
+    /// The DOF whose return the search ranked by.
+    pub dof: Dof,
     pub start: PerDof<[f64; 2]>,
     pub gains: PerDof<[f64; 2]>,
     /// The found gains' return on the search set, and the trials in which they lost the cable.
@@ -94,6 +100,9 @@ pub struct Found {
     pub evaluations: usize,
 }
 
+/// The twin's limit's gains: per DOF, the pair best for it.
+pub type LimitGains = PerDof<PerDof<[f64; 2]>>;
+
 fn to_vec(g: &PerDof<[f64; 2]>) -> [f64; 4] {
     [g.sway[0], g.sway[1], g.yaw[0], g.yaw[1]]
 }
@@ -102,14 +111,6 @@ fn to_gains(v: &[f64; 4]) -> PerDof<[f64; 2]> {
     PerDof {
         sway: [v[0], v[1]],
         yaw: [v[2], v[3]],
-    }
-}
-
-/// The gains' indices in the search vector, per DOF.
-fn indices(dof: Dof) -> [usize; 2] {
-    match dof {
-        Dof::Sway => [0, 1],
-        Dof::Yaw => [2, 3],
     }
 }
 
@@ -142,12 +143,14 @@ impl Score {
     }
 }
 
-/// Searches the best linear policies on `twin` from `start` (see the module docs); `candidates`
-/// join the first generation.
+/// Searches the pair of linear policies best for `dof` on `twin` from `start` (see the module
+/// docs); `candidates` join the first generation.
+#[allow(clippy::too_many_arguments)]
 pub fn search(
     scenario: &Scenario,
     learning: &LearningParams,
     twin: &TwinParams,
+    dof: Dof,
     start: PerDof<[f64; 2]>,
     candidates: &[PerDof<[f64; 2]>],
     params: &SearchParams,
@@ -156,18 +159,22 @@ pub fn search(
     // The search set: `trials` distinct start marks.
     let mut search_twin = twin.clone();
     search_twin.trials.cycle = params.trials;
-    let evaluate_gains = |v: &[f64; 4]| -> Result<Evaluation, FromCheckpointError> {
+    let evaluate_gains = |v: &[f64; 4]| -> Result<(PerDof<f64>, u32), FromCheckpointError> {
         let c = policy_checkpoint(scenario, learning, to_gains(v));
-        evaluate(
+        let e = evaluate(
             scenario,
             &search_twin,
             params.eyes,
             &c,
             params.seed,
             params.trials,
-        )
+        )?;
+        Ok((e.mean(), e.lost))
     };
-    let mut rng = StdRng::seed_from_u64(config::derive_seed(params.seed, "twin-limit/sampling"));
+    let mut rng = StdRng::seed_from_u64(config::derive_seed(
+        params.seed,
+        &format!("twin-limit/sampling/{dof}"),
+    ));
     let mut mean = to_vec(&start);
     let mut spread: [f64; 4] = std::array::from_fn(|i| 0.5 * mean[i].abs() + 1.0);
     let population = params.population.max(4);
@@ -175,11 +182,8 @@ pub fn search(
     let mut generations = Vec::new();
     let mut evaluations = 0;
     let mut mean_score = None;
-    // The best of the start and the candidates for each DOF (its gains and score), on the search set.
-    let mut first_best: PerDof<Option<([f64; 2], Score)>> = PerDof {
-        sway: None,
-        yaw: None,
-    };
+    // The best of the start and the candidates for the DOF (its gains and score), on the search set.
+    let mut first_best: Option<([f64; 4], (PerDof<f64>, u32))> = None;
     for g in 0..params.generations.max(1) {
         // The mean first; in the first generation the candidates next, then the samples.
         let given: Vec<[f64; 4]> = if g == 0 {
@@ -197,22 +201,17 @@ pub fn search(
             }))
             .collect();
         let results = parallel_map(members.len(), &Progress::hidden(), |k| {
-            evaluate_gains(&members[k]).map(|e| (e.mean(), e.lost))
+            evaluate_gains(&members[k])
         });
         evaluations += members.len();
         let results = results.into_iter().collect::<Result<Vec<_>, _>>()?;
         if g == 0 {
-            for dof in Dof::ALL {
-                let given = 1 + candidates.len();
-                for (m, r) in members[..given].iter().zip(&results) {
-                    let score = Score::of(r, dof);
-                    if first_best
-                        .get(dof)
-                        .is_none_or(|(_, best)| score.beats(&best))
-                    {
-                        let [a, b] = indices(dof);
-                        *first_best.get_mut(dof) = Some(([m[a], m[b]], score));
-                    }
+            let given = 1 + candidates.len();
+            for (m, r) in members[..given].iter().zip(&results) {
+                if first_best
+                    .is_none_or(|(_, best)| Score::of(r, dof).beats(&Score::of(&best, dof)))
+                {
+                    first_best = Some((*m, *r));
                 }
             }
         }
@@ -224,6 +223,7 @@ pub fn search(
             mean_lost: results[0].1,
         });
         tracing::info!(
+            %dof,
             generation = g + 1,
             sway = ?to_gains(&mean).sway,
             yaw = ?to_gains(&mean).yaw,
@@ -236,22 +236,20 @@ pub fn search(
         if spread.iter().all(|s| *s < params.tolerance) {
             break;
         }
-        for dof in Dof::ALL {
-            let mut order: Vec<usize> = (0..members.len()).collect();
-            // The best first: a policy that lost the cable ranks below every one that kept it
-            // (a trial cut short by a lost cable costs less than 90 s of poor tracking).
-            order.sort_by(|a, b| Score::of(&results[*b], dof).cmp(&Score::of(&results[*a], dof)));
-            for i in indices(dof) {
-                let values: Vec<f64> = order[..elite].iter().map(|&k| members[k][i]).collect();
-                let m = stats::mean(values.iter().copied());
-                let sd = (stats::mean(values.iter().map(|v| (v - m).powi(2)))).sqrt();
-                // Smoothed, so one lucky generation does not collapse the spread; and never below
-                // the step the mean just took, so the search keeps its reach while it still travels
-                // (the cross-entropy method's known failure is to shrink before it arrives).
-                let step = (m - mean[i]).abs();
-                spread[i] = 0.5 * spread[i] + 0.5 * sd.max(step).max(0.5 * params.tolerance);
-                mean[i] = m;
-            }
+        let mut order: Vec<usize> = (0..members.len()).collect();
+        // The best first: a policy that lost the cable ranks below every one that kept it (a trial
+        // cut short by a lost cable costs less than 90 s of poor tracking).
+        order.sort_by(|a, b| Score::of(&results[*b], dof).cmp(&Score::of(&results[*a], dof)));
+        for i in 0..4 {
+            let values: Vec<f64> = order[..elite].iter().map(|&k| members[k][i]).collect();
+            let m = stats::mean(values.iter().copied());
+            let sd = (stats::mean(values.iter().map(|v| (v - m).powi(2)))).sqrt();
+            // Smoothed, so one lucky generation does not collapse the spread; and never below the
+            // step the mean just took, so the search keeps its reach while it still travels (the
+            // cross-entropy method's known failure is to shrink before it arrives).
+            let step = (m - mean[i]).abs();
+            spread[i] = 0.5 * spread[i] + 0.5 * sd.max(step).max(0.5 * params.tolerance);
+            mean[i] = m;
         }
     }
     // The last generation's mean; evaluated once more if it moved after its last evaluation.
@@ -260,37 +258,27 @@ pub fn search(
         mean_score.expect("evaluated")
     } else {
         evaluations += 1;
-        let e = evaluate_gains(&mean)?;
-        (e.mean(), e.lost)
+        evaluate_gains(&mean)?
     };
-    // Never worse than where it began: a DOF whose search ended below the best return of the start
-    // and the candidates on the search set (a population that drifted into losing the cable) keeps
-    // that policy's gains.
-    let mut kept_start = false;
-    for dof in Dof::ALL {
-        let Some((gains, best)) = *first_best.get(dof) else {
-            continue;
-        };
-        if best.beats(&Score::of(&search_score, dof)) {
-            tracing::warn!(
-                %dof,
-                start_or_candidate = best.ret,
-                start_or_candidate_lost = best.lost,
-                found = search_score.0.get(dof),
-                found_lost = search_score.1,
-                "twin limit: the search ended worse than its start or a candidate; that policy's gains are kept"
-            );
-            let [a, b] = indices(dof);
-            (mean[a], mean[b]) = (gains[0], gains[1]);
-            kept_start = true;
-        }
-    }
-    if kept_start {
-        evaluations += 1;
-        let e = evaluate_gains(&mean)?;
-        search_score = (e.mean(), e.lost);
+    // Never worse than where it began: a search that ended below the best of the start and the
+    // candidates on the search set (a population that drifted into losing the cable) keeps that
+    // policy's gains.
+    if let Some((gains, best)) = first_best
+        && Score::of(&best, dof).beats(&Score::of(&search_score, dof))
+    {
+        tracing::warn!(
+            %dof,
+            start_or_candidate = best.0.get(dof),
+            start_or_candidate_lost = best.1,
+            found = search_score.0.get(dof),
+            found_lost = search_score.1,
+            "twin limit: the search ended worse than its start or a candidate; that policy's gains are kept"
+        );
+        // The same set evaluates alike: its first evaluation is its score.
+        (mean, search_score) = (gains, best);
     }
     Ok(Found {
+        dof,
         start,
         gains: to_gains(&mean),
         search_return: search_score.0,
@@ -346,36 +334,48 @@ pub struct Beaten {
     pub noise: f64,
 }
 
-/// Per DOF, the candidate most above `limit` (which lost the cable in `limit_lost` trials of the
-/// set) by more than twice `noise` (none: the limit holds). A candidate that lost the cable in more
-/// trials than the limit is a failed policy and beats nothing, whatever its return (a trial cut
-/// short costs less than a whole one). A noise that is not a number (not measured) counts as none:
-/// any margin beats the limit.
+/// The candidate most above a DOF's limit `limit` (whose pair lost the cable in `limit_lost`
+/// trials of the set) in that DOF by more than twice `noise` (none: the limit holds). A candidate
+/// that lost the cable in more trials than the limit is a failed policy and beats nothing, whatever
+/// its return (a trial cut short costs less than a whole one). A noise that is not a number (not
+/// measured) counts as none: any margin beats the limit.
+pub fn beaten_in(
+    dof: Dof,
+    limit: f64,
+    limit_lost: u32,
+    candidates: &[Candidate],
+    noise: f64,
+) -> Option<Beaten> {
+    let n = if noise.is_finite() { noise } else { 0.0 };
+    candidates
+        .iter()
+        .filter(|c| c.lost <= limit_lost)
+        .map(|c| (c, c.evaluated.get(dof) - limit))
+        .filter(|(_, margin)| *margin > 2.0 * n)
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(c, margin)| Beaten {
+            by: c.name.clone(),
+            margin,
+            noise: n,
+        })
+}
+
+/// [`beaten_in`] for both DOFs: `limit` and `limit_lost` per DOF (each DOF's limit is its own pair).
 pub fn beaten(
     limit: PerDof<f64>,
-    limit_lost: u32,
+    limit_lost: PerDof<u32>,
     candidates: &[Candidate],
     noise: PerDof<f64>,
 ) -> PerDof<Option<Beaten>> {
-    let of = |dof: Dof| {
-        let n = noise.get(dof);
-        let n = if n.is_finite() { *n } else { 0.0 };
-        candidates
-            .iter()
-            .filter(|c| c.lost <= limit_lost)
-            .map(|c| (c, c.evaluated.get(dof) - limit.get(dof)))
-            .filter(|(_, margin)| *margin > 2.0 * n)
-            .max_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|(c, margin)| Beaten {
-                by: c.name.clone(),
-                margin,
-                noise: n,
-            })
-    };
-    PerDof {
-        sway: of(Dof::Sway),
-        yaw: of(Dof::Yaw),
-    }
+    PerDof::from_fn(|dof| {
+        beaten_in(
+            dof,
+            *limit.get(dof),
+            *limit_lost.get(dof),
+            candidates,
+            *noise.get(dof),
+        )
+    })
 }
 
 /// The evaluation's noise on a difference between two policies, per DOF: the largest spread over
@@ -418,42 +418,115 @@ pub struct Check {
     pub noise: PerDof<f64>,
 }
 
-/// One round of [`find`]: its search, the limit it found evaluated on the evaluation set, and the
-/// candidates that beat it there beyond the noise.
+/// One round of [`find`]: its search, the pair it found evaluated on the evaluation set (both DOFs,
+/// and the trials that lost the cable), and the candidate that beat it there in the DOF beyond the
+/// noise.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Round {
     pub search: SearchParams,
     pub found: Found,
     pub evaluated: PerDof<f64>,
-    pub beaten: PerDof<Option<Beaten>>,
+    pub lost: u32,
+    pub beaten: Option<Beaten>,
 }
 
-/// The twin's limit, checked against the candidates.
+/// One DOF's limit, checked against the candidates: the pair best for it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Limit {
+pub struct DofLimit {
     pub gains: PerDof<[f64; 2]>,
-    /// Its evaluation on the evaluation set.
+    /// Its evaluation on the evaluation set (the DOF's limit is its return in the DOF).
     pub evaluation: Evaluation,
     pub rounds: Vec<Round>,
-    /// A candidate still above it beyond the noise, per DOF.
-    pub beaten: PerDof<Option<Beaten>>,
+    /// A candidate still above it in the DOF beyond the noise.
+    pub beaten: Option<Beaten>,
 }
 
-/// The twin's limit (see the module docs): the search from `start` with `candidates` in its first
-/// generation, checked on `check`'s evaluation set, and gone on with for up to `rounds` rounds in
-/// all while a candidate beats it there beyond the noise.
+/// The twin's limit: each DOF's.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Limit(pub PerDof<DofLimit>);
+
+impl Limit {
+    pub fn get(&self, dof: Dof) -> &DofLimit {
+        self.0.get(dof)
+    }
+
+    pub fn gains(&self) -> LimitGains {
+        self.0.map(|_, l| l.gains)
+    }
+
+    /// Each DOF's limit: its return under its own pair on the evaluation set.
+    pub fn returns(&self) -> PerDof<f64> {
+        self.0.map(|dof, l| *l.evaluation.mean().get(dof))
+    }
+
+    /// The trials of the evaluation set in which each DOF's pair lost the cable.
+    pub fn lost(&self) -> PerDof<u32> {
+        self.0.map(|_, l| l.evaluation.lost)
+    }
+
+    pub fn beaten(&self) -> PerDof<Option<Beaten>> {
+        self.0.map(|_, l| l.beaten.clone())
+    }
+
+    /// The rounds of both DOFs' searches.
+    pub fn rounds(&self) -> Vec<Round> {
+        [&self.0.sway, &self.0.yaw]
+            .into_iter()
+            .flat_map(|l| l.rounds.iter().cloned())
+            .collect()
+    }
+}
+
+/// The twin's limit (see the module docs): each DOF's, from its pair in `start` (the same for both,
+/// or one per DOF).
 #[allow(clippy::too_many_arguments)]
 pub fn find(
     scenario: &Scenario,
     learning: &LearningParams,
     twin: &TwinParams,
-    start: PerDof<[f64; 2]>,
+    start: LimitGains,
     candidates: &[Candidate],
     params: &SearchParams,
     check: &Check,
     rounds: usize,
     progress: &Progress,
 ) -> Result<Limit, FromCheckpointError> {
+    let of = |dof: Dof| {
+        find_in(
+            scenario,
+            learning,
+            twin,
+            dof,
+            *start.get(dof),
+            candidates,
+            params,
+            check,
+            rounds,
+            progress,
+        )
+    };
+    Ok(Limit(PerDof {
+        sway: of(Dof::Sway)?,
+        yaw: of(Dof::Yaw)?,
+    }))
+}
+
+/// `dof`'s limit: the search from `start` with `candidates` in its first generation, checked on
+/// `check`'s evaluation set, and gone on with for up to `rounds` rounds in all while a candidate
+/// beats it there in the DOF beyond the noise.
+#[allow(clippy::too_many_arguments)]
+pub fn find_in(
+    scenario: &Scenario,
+    learning: &LearningParams,
+    twin: &TwinParams,
+    dof: Dof,
+    start: PerDof<[f64; 2]>,
+    candidates: &[Candidate],
+    params: &SearchParams,
+    check: &Check,
+    rounds: usize,
+    progress: &Progress,
+) -> Result<DofLimit, FromCheckpointError> {
     let mut start = start;
     let mut given: Vec<PerDof<[f64; 2]>> = candidates.iter().map(|c| c.gains).collect();
     let mut done = Vec::new();
@@ -467,7 +540,9 @@ pub fn find(
                 ..params.clone()
             }
         };
-        let found = search(scenario, learning, twin, start, &given, &round, progress)?;
+        let found = search(
+            scenario, learning, twin, dof, start, &given, &round, progress,
+        )?;
         let policy = policy_checkpoint(scenario, learning, found.gains);
         let evaluation = evaluate(
             scenario,
@@ -477,51 +552,50 @@ pub fn find(
             check.seed,
             check.trials,
         )?;
-        let beaten = beaten(evaluation.mean(), evaluation.lost, candidates, check.noise);
+        let beaten = beaten_in(
+            dof,
+            *evaluation.mean().get(dof),
+            evaluation.lost,
+            candidates,
+            *check.noise.get(dof),
+        );
         let gains = found.gains;
-        let goes_on = beaten.sway.is_some() || beaten.yaw.is_some();
-        for (dof, b) in [(Dof::Sway, &beaten.sway), (Dof::Yaw, &beaten.yaw)] {
-            if let Some(b) = b {
-                tracing::warn!(
-                    round = r + 1,
-                    %dof,
-                    by = %b.by,
-                    margin = b.margin,
-                    noise = b.noise,
-                    "twin limit: a candidate evaluates above the limit beyond the noise"
-                );
-            }
+        if let Some(b) = &beaten {
+            tracing::warn!(
+                round = r + 1,
+                %dof,
+                by = %b.by,
+                margin = b.margin,
+                noise = b.noise,
+                "twin limit: a candidate evaluates above the limit beyond the noise"
+            );
         }
         done.push((
             Round {
                 search: round,
                 found,
                 evaluated: evaluation.mean(),
+                lost: evaluation.lost,
                 beaten: beaten.clone(),
             },
             evaluation,
         ));
-        if !goes_on {
+        let Some(b) = beaten else {
             break;
-        }
-        // The next round: from this limit, with the candidates that beat it in its first generation.
+        };
+        // The next round: from this limit, with the candidate that beat it in its first generation.
         start = gains;
         given = candidates
             .iter()
-            .filter(|c| {
-                [&beaten.sway, &beaten.yaw]
-                    .into_iter()
-                    .flatten()
-                    .any(|b| b.by == c.name)
-            })
+            .filter(|c| c.name == b.by)
             .map(|c| c.gains)
             .collect();
     }
     // A later round searches a larger set but need not end higher on the evaluation set: the
     // limit is the round least beaten there.
     let (rounds, mut evaluations): (Vec<Round>, Vec<Evaluation>) = done.into_iter().unzip();
-    let best = least_beaten(&rounds);
-    Ok(Limit {
+    let best = least_beaten(dof, &rounds);
+    Ok(DofLimit {
         gains: rounds[best].found.gains,
         evaluation: evaluations.swap_remove(best),
         beaten: rounds[best].beaten.clone(),
@@ -529,24 +603,18 @@ pub fn find(
     })
 }
 
-/// The round whose limit is least beaten on the evaluation set (the first of equals).
-fn least_beaten(rounds: &[Round]) -> usize {
-    let of = |r: &Round| shortfall(&r.evaluated, &r.beaten);
+/// The round whose limit is least beaten in `dof` on the evaluation set (the first of equals).
+fn least_beaten(dof: Dof, rounds: &[Round]) -> usize {
+    let of = |r: &Round| shortfall(*r.evaluated.get(dof), r.beaten.as_ref());
     (0..rounds.len())
         .min_by(|&a, &b| of(&rounds[a]).total_cmp(&of(&rounds[b])))
         .expect("one round at least")
 }
 
-/// How far a limit evaluated at `evaluated` is `beaten` on the evaluation set: the candidates'
-/// margins above it, relative to its return, summed over the DOFs (0: not beaten).
-pub fn shortfall(evaluated: &PerDof<f64>, beaten: &PerDof<Option<Beaten>>) -> f64 {
-    Dof::ALL
-        .iter()
-        .filter_map(|&dof| {
-            let b = beaten.get(dof).as_ref()?;
-            Some(b.margin / evaluated.get(dof).abs().max(f64::MIN_POSITIVE))
-        })
-        .sum()
+/// How far a DOF's limit evaluated at `evaluated` is `beaten` on the evaluation set: the
+/// candidate's margin above it, relative to its return (0: not beaten).
+pub fn shortfall(evaluated: f64, beaten: Option<&Beaten>) -> f64 {
+    beaten.map_or(0.0, |b| b.margin / evaluated.abs().max(f64::MIN_POSITIVE))
 }
 
 #[cfg(test)]
@@ -578,17 +646,11 @@ mod tests {
         assert!(n.sway.is_nan() && n.yaw.is_nan(), "{n:?}");
     }
 
-    fn round(evaluated: (f64, f64), beaten_by: (f64, f64)) -> Round {
-        let by = |margin: f64| {
-            (margin > 0.0).then(|| Beaten {
-                by: "a candidate".to_owned(),
-                margin,
-                noise: 0.0,
-            })
-        };
+    fn round(evaluated: f64, margin: f64) -> Round {
         Round {
             search: SearchParams::default(),
             found: Found {
+                dof: Dof::Yaw,
                 start: PerDof::default(),
                 gains: PerDof::default(),
                 search_return: PerDof::both(0.0),
@@ -597,29 +659,72 @@ mod tests {
                 evaluations: 0,
             },
             evaluated: PerDof {
-                sway: evaluated.0,
-                yaw: evaluated.1,
+                sway: -0.2,
+                yaw: evaluated,
             },
-            beaten: PerDof {
-                sway: by(beaten_by.0),
-                yaw: by(beaten_by.1),
-            },
+            lost: 0,
+            beaten: (margin > 0.0).then(|| Beaten {
+                by: "a candidate".to_owned(),
+                margin,
+                noise: 0.0,
+            }),
         }
     }
 
-    /// The limit is the round least beaten, relative to each DOF's return (sway's are tens of
-    /// times smaller than yaw's), not the last one.
+    /// A DOF's limit is the round least beaten in it, relative to its return, not the last one.
     #[test]
     fn the_limit_is_the_round_least_beaten() {
         let rounds = [
-            round((-0.2, -5.0), (0.0, 0.5)),  // yaw beaten by 10%
-            round((-0.2, -5.0), (0.01, 0.0)), // sway by 5%: the least
-            round((-0.2, -5.0), (0.02, 0.1)), // 10% + 2%
+            round(-5.0, 0.5), // beaten by 10%
+            round(-4.0, 0.3), // 7.5%
+            round(-6.0, 0.3), // 5%: the least
+            round(-3.0, 0.6), // 20%
         ];
-        assert_eq!(least_beaten(&rounds), 1);
-        let unbeaten = round((-0.3, -6.0), (0.0, 0.0));
-        assert_eq!(least_beaten(&[rounds[0].clone(), unbeaten.clone()]), 1);
-        assert_eq!(least_beaten(&[unbeaten.clone(), unbeaten]), 0);
+        assert_eq!(least_beaten(Dof::Yaw, &rounds), 2);
+        let unbeaten = round(-7.0, 0.0);
+        assert_eq!(
+            least_beaten(Dof::Yaw, &[rounds[0].clone(), unbeaten.clone()]),
+            1
+        );
+        assert_eq!(least_beaten(Dof::Yaw, &[unbeaten.clone(), unbeaten]), 0);
+    }
+
+    /// Each DOF's limit is checked on its own pair: a candidate beats a DOF's limit by its return
+    /// in that DOF, and only if it lost the cable in no more trials than that DOF's pair did.
+    #[test]
+    fn each_dof_is_checked_against_its_own_pair() {
+        let candidate = |name: &str, sway: f64, yaw: f64, lost: u32| Candidate {
+            name: name.to_owned(),
+            gains: PerDof::default(),
+            evaluated: PerDof { sway, yaw },
+            lost,
+        };
+        let candidates = [
+            candidate("sway's best", -0.5, -9.0, 0),
+            candidate("yaw's best", -3.0, -4.0, 0),
+            candidate("reckless", 0.0, 0.0, 2),
+        ];
+        // The limit pairs: sway's at -0.6 (its pair lost no cable), yaw's at -5.0 (its pair lost
+        // two): the reckless policy counts against yaw's pair only.
+        let limit = PerDof {
+            sway: -0.6,
+            yaw: -5.0,
+        };
+        let b = beaten(
+            limit,
+            PerDof { sway: 0, yaw: 2 },
+            &candidates,
+            PerDof::both(0.02),
+        );
+        let sway = b.sway.expect("sway's best is 0.1 above sway's limit");
+        assert_eq!(sway.by, "sway's best");
+        assert!((sway.margin - 0.1).abs() < 1e-12);
+        let yaw = b.yaw.expect("the reckless policy is 5.0 above yaw's limit");
+        assert_eq!(yaw.by, "reckless");
+        // Within twice the noise (0.1 < 0.9): held; beyond it (1.0): beaten.
+        let held = beaten(limit, PerDof::both(0), &candidates, PerDof::both(0.45));
+        assert!(held.sway.is_none(), "{held:?}");
+        assert_eq!(held.yaw.map(|b| b.by).as_deref(), Some("yaw's best"));
     }
 
     fn alone_is_nothing(policies: &[&PerDof<Vec<f64>>]) {

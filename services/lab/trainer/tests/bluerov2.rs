@@ -6,7 +6,6 @@ use config::{Dof, Eyes, PerDof, Preset, TwinParams};
 use learning::Algorithm;
 use std::path::{Path, PathBuf};
 use trainer::Setup;
-use trainer::evaluation::policy_checkpoint;
 use trainer::experiment::{self, Curve};
 use trainer::progress::Progress;
 use trainer::step_two_bench::{BenchParams, run};
@@ -84,21 +83,23 @@ fn the_simulation_policy_flies_the_bluerov2_twin_close_to_its_limit() {
     let s = setup();
     let twin: TwinParams = config::load(&dir().join("twin.toml")).unwrap();
     assert!(twin.autopilot.is_some() && s.scenario.pilot.is_some());
-    let limit_gains = search(
-        &s.scenario,
-        &s.learning,
-        &twin,
-        experiment::lqr_gains(&s).unwrap(),
-        &[],
-        &SearchParams {
-            eyes: Eyes::Ideal,
-            ..SearchParams::default()
-        },
-        &Progress::hidden(),
-    )
-    .unwrap()
-    .gains;
-    let limit = policy_checkpoint(&s.scenario, &s.learning, limit_gains);
+    let limit = PerDof::from_fn(|dof| {
+        search(
+            &s.scenario,
+            &s.learning,
+            &twin,
+            dof,
+            experiment::lqr_gains(&s).unwrap(),
+            &[],
+            &SearchParams {
+                eyes: Eyes::Ideal,
+                ..SearchParams::default()
+            },
+            &Progress::hidden(),
+        )
+        .unwrap()
+        .gains
+    });
     let params = BenchParams {
         seeds: vec![1, 2, 3],
         trials: 20,
