@@ -1054,7 +1054,8 @@ fn twin_limit(
         search.trials,
         scored.len()
     )?;
-    let progress = Progress::new("twin limit", search.generations as u64);
+    // A search per DOF.
+    let progress = Progress::new("twin limit", 2 * search.generations as u64);
     let found = trainer::twin_limit::find(
         scenario,
         learning,

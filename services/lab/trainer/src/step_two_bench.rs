@@ -14,13 +14,14 @@
 //! with the cables they lose there; the spread of `after - sim` over those sets is the evaluation's
 //! noise.
 //!
-//! **The limit is a limit**: every policy a seed evaluated (the simulation policy, each evaluation
-//! of the session, each policy after a learning trial, the final one) is a candidate; where one
-//! evaluates above the bench's limit by more than twice the check's noise (the largest spread over
-//! the held-out sets of a difference between the simulation policy, the final one and the bench's
-//! limit: [`twin_limit::difference_noise`]), the seed's limit search goes on
-//! from it ([`twin_limit::find`], on the seed's own search set) and the seed's row reports that
-//! limit. A row's limit still beaten after the search's rounds is marked in the table.
+//! **The limit is a limit**: each DOF's limit is its return under its own pair (the bench's limit
+//! is a pair per DOF: [`twin_limit`]). Every policy a seed evaluated (the simulation policy, each
+//! evaluation of the session, each policy after a learning trial, the final one) is a candidate;
+//! where one evaluates above a DOF's limit by more than twice the check's noise (the largest spread
+//! over the held-out sets of a difference between the simulation policy, the final one and the
+//! bench's limit pairs: [`twin_limit::difference_noise`]), that DOF's search goes on from it
+//! ([`twin_limit::find_in`], on the seed's own search set) and the seed's row reports that limit if
+//! less beaten. A row's limit still beaten after the search's rounds is marked in the table.
 //!
 //! **Shards**: a seed's row depends on its seed alone (and the bench's limit, searched from a fixed
 //! seed), so seeds run in any order, on any thread or machine: `--shard K/N` runs every N-th seed

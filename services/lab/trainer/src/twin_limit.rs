@@ -114,6 +114,9 @@ fn to_gains(v: &[f64; 4]) -> PerDof<[f64; 2]> {
     }
 }
 
+/// A policy's returns on a set, and the trials in which it lost the cable.
+type Scored = (PerDof<f64>, u32);
+
 /// How good a policy is for one DOF on a set: a policy that lost the cable in fewer trials is
 /// better, whatever its return (a lost cable is a failed policy, as step two's safety layer counts
 /// it); among those that lost it alike, the higher return.
@@ -124,7 +127,7 @@ struct Score {
 }
 
 impl Score {
-    fn of(result: &(PerDof<f64>, u32), dof: Dof) -> Score {
+    fn of(result: &Scored, dof: Dof) -> Score {
         Score {
             lost: result.1,
             ret: *result.0.get(dof),
@@ -159,7 +162,7 @@ pub fn search(
     // The search set: `trials` distinct start marks.
     let mut search_twin = twin.clone();
     search_twin.trials.cycle = params.trials;
-    let evaluate_gains = |v: &[f64; 4]| -> Result<(PerDof<f64>, u32), FromCheckpointError> {
+    let evaluate_gains = |v: &[f64; 4]| -> Result<Scored, FromCheckpointError> {
         let c = policy_checkpoint(scenario, learning, to_gains(v));
         let e = evaluate(
             scenario,
@@ -183,7 +186,7 @@ pub fn search(
     let mut evaluations = 0;
     let mut mean_score = None;
     // The best of the start and the candidates for the DOF (its gains and score), on the search set.
-    let mut first_best: Option<([f64; 4], (PerDof<f64>, u32))> = None;
+    let mut first_best: Option<([f64; 4], Scored)> = None;
     for g in 0..params.generations.max(1) {
         // The mean first; in the first generation the candidates next, then the samples.
         let given: Vec<[f64; 4]> = if g == 0 {

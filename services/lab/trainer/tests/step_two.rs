@@ -151,11 +151,14 @@ fn assert_no_pair_ends_worse(s: &Setup, results: &[SeedResult]) {
     }
 }
 
-/// The search, from a quarter of the LQR gains, on the twin with its reality gap off (the identified model),
-/// comes back to the LQR gain: the same evaluated return, and gains within the flat directions of
-/// the undiscounted trial return.
+/// Each DOF's search, from a quarter of the LQR gains, on the twin with its reality gap off (the
+/// identified model), ends no lower than the LQR gains in its DOF on held-out sets, and sway's comes
+/// back to the LQR sway gains. (The LQR gains are each DOF's best alone; over all four gains a DOF
+/// can do better where the other steers less: measured here, yaw's best pair turns sway's position
+/// gain off and beats the LQR gains in yaw by 0 to 5% on seeds 1 to 3, since both DOFs share the
+/// thrusters.)
 #[test]
-fn the_limit_search_finds_the_lqr_gain_with_the_gap_off() {
+fn the_limit_search_is_never_below_the_lqr_gains_with_the_gap_off() {
     let s = setup();
     let ideal = twin("twin-ideal.toml");
     let lqr = experiment::lqr_gains(&s).unwrap();
@@ -202,31 +205,19 @@ fn the_limit_search_finds_the_lqr_gain_with_the_gap_off() {
             let found_j = j(*found.get(dof));
             let (f, l, st) = (*found_j.get(dof), *lqr_j.get(dof), *start_j.get(dof));
             eprintln!("seed {seed} {dof}: found {f:.4}, LQR {l:.4}, start {st:.4}");
-            // Measured on seeds 1 to 3: the found return within 0.6% of the LQR's (either side);
-            // 2% allows for the search set's noise.
-            assert!(
-                (f - l).abs() < 0.02 * l.abs(),
-                "{dof}: found {f} vs LQR {l}"
-            );
+            // Each DOF's search ranks all four gains by its return, so it can end above the LQR
+            // gains (each DOF's LQR is optimal for its own discounted cost alone); it must not end
+            // below: 2% allows for the search set's noise.
+            assert!(f >= l - 0.02 * l.abs(), "{dof}: found {f} below LQR {l}");
             assert!(st < l - 0.02 * l.abs(), "{dof}: the start is clearly worse");
         }
     }
-    // The gains: yaw measured within 8% of the LQR's position gain and 0.8 of its rate gain; sway
-    // 15 to 25% above (the undiscounted 90 s return prefers a little more gain than the discounted
-    // LQR cost, and is flat there). The bounds add the search's spread.
-    // Each DOF's own gains, from its own search.
-    let (f, l) = (
-        PerDof {
-            sway: found.sway.sway,
-            yaw: found.yaw.yaw,
-        },
-        lqr,
-    );
-    eprintln!("found {found:?}, LQR {l:?}");
-    assert!((f.yaw[0] / l.yaw[0] - 1.0).abs() < 0.15, "{f:?} vs {l:?}");
-    assert!((f.yaw[1] - l.yaw[1]).abs() < 1.5, "{f:?} vs {l:?}");
+    // Sway's own gains, from its search: measured within 5% of the LQR's (the undiscounted 90 s
+    // return is flat there); the bound adds the search's spread.
+    let (f, l) = (found.sway.sway, lqr.sway);
+    eprintln!("found {found:?}, LQR {lqr:?}");
     for i in 0..2 {
-        assert!((f.sway[i] / l.sway[i] - 1.0).abs() < 0.4, "{f:?} vs {l:?}");
+        assert!((f[i] / l[i] - 1.0).abs() < 0.4, "{f:?} vs {l:?}");
     }
 }
 
@@ -241,13 +232,13 @@ fn step_two_closes_the_gap_on_the_harsh_twin_and_never_leaves_a_seed_worse() {
     let verdict = summary(&results);
     for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
         // The published benchmark (12 seeds, ideal perception, `scripts/bench-step-two --eyes
-        // ideal`): median gap closed 84% for yaw (seeds 63% to 94%) and 100% for sway (99% to
-        // 116%). The margin is what the spread over those seeds needs for 8 of them: the lowest
-        // median any 8 of the 12 give is 76.9% for yaw and 99.7% for sway, so the bounds are 76%
-        // and 99%. Seeds 1 to 8 measured 85% and 100% (the test's limit is its own search's).
+        // ideal`): median gap closed 85% for yaw (seeds 61% to 94%) and 99% for sway (94% to
+        // 101%). The margin is what the spread over those seeds needs for 8 of them: the lowest
+        // median any 8 of the 12 give is 76.4% for yaw and 98.4% for sway, so the bounds are 76%
+        // and 98% (the test's limit is its own search's).
         let bound = match dof {
             Dof::Yaw => 0.76,
-            Dof::Sway => 0.99,
+            Dof::Sway => 0.98,
         };
         assert!(
             d.median_gap_closed >= bound,
@@ -291,11 +282,11 @@ fn no_trial_loses_the_cable_on_the_harsh_twin_with_a_cross_current() {
     assert_every_limit_is_a_limit(&results);
     for (dof, d) in [(Dof::Yaw, &verdict.yaw), (Dof::Sway, &verdict.sway)] {
         // The published benchmark (12 seeds, ideal perception): median gap closed 85% for yaw
-        // (seeds 6% to 96%) and 100% for sway (95% to 223%). The lowest median any 8 of those 12
-        // seeds give is 68.8% for yaw and 98.7% for sway, so the bounds are 68% and 98%.
+        // (seeds 6% to 96%) and 99% for sway (95% to 103%). The lowest median any 8 of those 12
+        // seeds give is 71.7% for yaw and 97.9% for sway, so the bounds are 71% and 97%.
         let bound = match dof {
-            Dof::Yaw => 0.68,
-            Dof::Sway => 0.98,
+            Dof::Yaw => 0.71,
+            Dof::Sway => 0.97,
         };
         assert!(
             d.median_gap_closed >= bound,
