@@ -368,17 +368,7 @@ fn the_two_step_job_over_mavlink_flies_what_one_process_flies() {
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let trials = summary["evaluation"]["trials"].as_u64().unwrap() as u32;
     // Each DOF's limit is its own pair's (twin-limit/sway, twin-limit/yaw).
-    for (policies, part) in [
-        (PerDof::both("step-one"), "sim_policy"),
-        (
-            PerDof {
-                sway: "twin-limit/sway",
-                yaw: "twin-limit/yaw",
-            },
-            "limit",
-        ),
-        (PerDof::both("step-two"), "after"),
-    ] {
+    for (part, policies) in trainer::report::POLICIES {
         let stated = PerDof {
             sway: summary["evaluation"][part]["sway"].as_f64().unwrap(),
             yaw: summary["evaluation"][part]["yaw"].as_f64().unwrap(),

@@ -176,17 +176,7 @@ fn the_two_step_job_runs_and_the_mesh_agrees_with_the_in_process_step_two() {
     let held_out = &summary["held_out"];
     let sets: Vec<u64> = serde_json::from_value(held_out["sets"].clone()).unwrap();
     assert_eq!(sets.len(), 2);
-    for (policies, part) in [
-        (PerDof::both("step-one"), "sim_policy"),
-        (
-            PerDof {
-                sway: "twin-limit/sway",
-                yaw: "twin-limit/yaw",
-            },
-            "limit",
-        ),
-        (PerDof::both("step-two"), "after"),
-    ] {
+    for (part, policies) in trainer::report::POLICIES {
         // Each distinct directory once: its return on the evaluation set and on the held-out sets.
         let mut runs: Vec<(&str, PerDof<f64>, Vec<_>)> = Vec::new();
         for dof in Dof::ALL {

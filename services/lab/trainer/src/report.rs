@@ -31,6 +31,32 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+/// The job's three policies as the summary names them (`evaluation.PART`, `held_out.PART`), with
+/// each DOF's policy directory in the job's directory (the limit's: each DOF's own pair).
+pub const POLICIES: [(&str, PerDof<&str>); 3] = [
+    (
+        "sim_policy",
+        PerDof {
+            sway: "step-one",
+            yaw: "step-one",
+        },
+    ),
+    (
+        "limit",
+        PerDof {
+            sway: "twin-limit/sway",
+            yaw: "twin-limit/yaw",
+        },
+    ),
+    (
+        "after",
+        PerDof {
+            sway: "step-two",
+            yaw: "step-two",
+        },
+    ),
+];
+
 /// `DIR/summary.json`.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Summary {
