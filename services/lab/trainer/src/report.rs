@@ -917,6 +917,33 @@ mod tests {
         assert!(c.sway.is_some() && c.yaw.is_none());
     }
 
+    /// The limit on the held-out sets takes each DOF's returns from that DOF's own pair, and counts
+    /// the cables and trials of both pairs.
+    #[test]
+    fn the_held_out_limit_is_each_dofs_own_pair() {
+        let pair = |name: &str, sway: f64, yaw: f64, lost| HeldOutPolicy {
+            name: name.to_owned(),
+            returns: PerDof {
+                sway: vec![sway, sway - 1.0],
+                yaw: vec![yaw, yaw - 1.0],
+            },
+            mean: PerDof {
+                sway: sway - 0.5,
+                yaw: yaw - 0.5,
+            },
+            lost,
+            trials: 10,
+        };
+        let l = limit_on_sets(
+            &pair("limit for sway", -1.0, -9.0, 1),
+            &pair("limit for yaw", -7.0, -5.0, 2),
+        );
+        assert_eq!(l.returns.sway, vec![-1.0, -2.0]);
+        assert_eq!(l.returns.yaw, vec![-5.0, -6.0]);
+        assert_eq!((l.mean.sway, l.mean.yaw), (-1.5, -5.5));
+        assert_eq!((l.lost, l.trials), (3, 20));
+    }
+
     #[test]
     fn trials_are_matched_to_the_attempt_from_the_same_start() {
         let attempts = trace(&[(0.1, 0.3), (-0.2, -0.5)]);

@@ -676,7 +676,7 @@ pub fn table(results: &[SeedResult], params: &BenchParams) -> String {
     };
     let _ = writeln!(
         t,
-        "| seed | yaw: sim | after | limit | closed | sway: sim | after | limit | closed | final pair: evaluated after, score | half (yaw, sway) | rollbacks | refused | lost | held out: lost (sim, after, limit) |"
+        "| seed | yaw: sim | after | limit | closed | sway: sim | after | limit | closed | final pair: evaluated after, score | half (yaw, sway) | rollbacks | refused | lost | held out: lost (sim, after; the limit's two pairs) |"
     );
     let _ = writeln!(
         t,
@@ -690,7 +690,7 @@ pub fn table(results: &[SeedResult], params: &BenchParams) -> String {
         });
         let _ = writeln!(
             t,
-            "| {} | {:.3} | {:.3} | {:.3}{} | {} | {:.4} | {:.4} | {:.4}{} | {} | {pair} | {}, {} | {}, {} | {}, {} | {} | {}, {}, {} of {} |",
+            "| {} | {:.3} | {:.3} | {:.3}{} | {} | {:.4} | {:.4} | {:.4}{} | {} | {pair} | {}, {} | {}, {} | {}, {} | {} | {}, {} of {}; {} of {} |",
             r.seed,
             r.sim.yaw,
             r.after.yaw,
@@ -711,8 +711,9 @@ pub fn table(results: &[SeedResult], params: &BenchParams) -> String {
             r.lost,
             r.held_out_lost.sim,
             r.held_out_lost.after,
-            r.held_out_lost.limit,
             r.held_out_trials,
+            r.held_out_lost.limit,
+            2 * r.held_out_trials,
         );
     }
     let s = summary(results);
@@ -747,7 +748,7 @@ pub fn table(results: &[SeedResult], params: &BenchParams) -> String {
     }
     let _ = writeln!(
         t,
-        "cable lost in {} of {} trials; on the held-out sets, of {} trials each: the simulation policy {}, step two's {}, the limit {}",
+        "cable lost in {} of {} trials; on the held-out sets, of {} trials each: the simulation policy {}, step two's {}, the limit's two pairs {} (of twice as many)",
         s.lost,
         s.trials,
         s.held_out_trials,
