@@ -1041,8 +1041,12 @@ fn twin_limit(
             e,
         )?);
     }
-    let noise =
-        trainer::twin_limit::difference_noise(&held.iter().map(|h| &h.returns).collect::<Vec<_>>());
+    let noise = trainer::twin_limit::check_noise(
+        &held
+            .iter()
+            .map(|h| (&h.returns, h.lost))
+            .collect::<Vec<_>>(),
+    );
     cli::outln!(
         "twin limit on {} ({} perception): cross-entropy search from sway K = {:?}, yaw K = {:?}; {} candidates x {} generations on {} trials; {} policies to be above",
         twin_path.display(),
@@ -1112,10 +1116,11 @@ fn twin_limit(
     }
     let rounds = found.rounds();
     cli::outln!(
-        "evaluation set: seed {seed}, {e} trials; cable lost by sway's pair in {}, by yaw's in {}; {} rounds, {} policies evaluated in {:.1} s",
+        "evaluation set: seed {seed}, {e} trials; cable lost by sway's pair in {}, by yaw's in {}; rounds: sway {}, yaw {}; {} policies evaluated in {:.1} s",
         found.lost().sway,
         found.lost().yaw,
-        rounds.len(),
+        found.get(Dof::Sway).rounds.len(),
+        found.get(Dof::Yaw).rounds.len(),
         rounds.iter().map(|r| r.found.evaluations).sum::<usize>(),
         started.elapsed().as_secs_f64()
     )?;

@@ -381,8 +381,8 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
         sway: gap_is_noise(j_sim.sway, j_limit.sway),
         yaw: gap_is_noise(j_sim.yaw, j_limit.yaw),
     };
-    // The held-out sets, as the limit's run evaluated the job's three policies on them (the job
-    // names them sim, after and limit).
+    // The held-out sets, as the limit's run evaluated the job's policies on them (the job names them
+    // sim, after, and the limit's pairs `limit for sway` and `limit for yaw`).
     let held_out = match read_held_out(&limit_json)? {
         Some((sets, policies)) => {
             let find = |name: &str| {

@@ -19,9 +19,9 @@
 //! evaluation of the session, each policy after a learning trial, the final one) is a candidate;
 //! where one evaluates above a DOF's limit by more than twice the check's noise (the largest spread
 //! over the held-out sets of a difference between the simulation policy, the final one and the
-//! bench's limit pairs: [`twin_limit::difference_noise`]), that DOF's search goes on from it
-//! ([`twin_limit::find_in`], on the seed's own search set) and the seed's row reports that limit if
-//! less beaten. A row's limit still beaten after the search's rounds is marked in the table.
+//! DOF's bench limit pair, of those that kept the cable there: [`twin_limit::check_noise`]), that
+//! DOF's search goes on from it ([`twin_limit::find_in`], on the seed's own search set) and the
+//! seed's row reports that limit if less beaten. A row's limit still beaten after the search's rounds is marked in the table.
 //!
 //! **Shards**: a seed's row depends on its seed alone (and the bench's limit, searched from a fixed
 //! seed), so seeds run in any order, on any thread or machine: `--shard K/N` runs every N-th seed
@@ -128,8 +128,8 @@ pub struct SeedResult {
     pub bench_limit: PerDof<f64>,
     /// A policy of the seed still above the row's limit beyond the noise, per DOF.
     pub limit_beaten: PerDof<Option<Beaten>>,
-    /// The noise the limit's check allowed ([`twin_limit::difference_noise`] of the simulation
-    /// policy, step two's and the bench's limit on the held-out sets; NaN without them).
+    /// The noise the limit's check allowed ([`twin_limit::check_noise`] of the simulation policy,
+    /// step two's and the DOF's bench limit pair on the held-out sets; NaN without them).
     #[serde(default = "unmeasured", deserialize_with = "nan_per_dof")]
     pub check_noise: PerDof<f64>,
     #[serde(deserialize_with = "nan_per_dof")]
@@ -198,6 +198,11 @@ impl SeedResult {
                     .iter()
                     .all(|&d| p.evaluated.get(d).to_bits() == self.after.get(d).to_bits())
         })
+    }
+
+    /// Whether the row's search for `dof`'s limit went on from a policy of the seed.
+    pub fn limit_searched_on(&self, dof: Dof) -> bool {
+        self.limit_rounds.iter().any(|r| r.found.dof == dof)
     }
 
     /// Whether the row's limit is below a policy it evaluated beyond the noise.
@@ -384,6 +389,7 @@ pub fn run_seed(
         sway: evals.iter().map(|v| v.mean().sway).collect::<Vec<_>>(),
         yaw: evals.iter().map(|v| v.mean().yaw).collect::<Vec<_>>(),
     };
+    let lost = |evals: &[Evaluation]| -> u32 { evals.iter().map(|v| v.lost).sum() };
     // The bench's limit: each DOF's pair, on the held-out sets and on the seed's set.
     let bench_pairs = limit.map(|_, g| policy_checkpoint(scenario, learning, *g));
     let held_bench_limit = PerDof {
@@ -391,12 +397,17 @@ pub fn run_seed(
         yaw: on_sets(&bench_pairs.yaw)?,
     };
     let (held_sim_j, held_after_j) = (means(&held_sim), means(&held_after));
-    let noise = twin_limit::difference_noise(&[
-        &held_sim_j,
-        &held_after_j,
-        &means(&held_bench_limit.sway),
-        &means(&held_bench_limit.yaw),
-    ]);
+    // Each DOF's check compares its own pair with the seed's policies: the noise of that DOF from
+    // them (the other DOF's pair, far from them in this DOF, would only widen it).
+    let noise = PerDof::from_fn(|dof| {
+        let pair = held_bench_limit.get(dof);
+        *twin_limit::check_noise(&[
+            (&held_sim_j, lost(&held_sim)),
+            (&held_after_j, lost(&held_after)),
+            (&means(pair), lost(pair)),
+        ])
+        .get(dof)
+    });
     let bench_limit = PerDof {
         sway: evaluate(scenario, twin, params.eyes, &bench_pairs.sway, seed, e)?,
         yaw: evaluate(scenario, twin, params.eyes, &bench_pairs.yaw, seed, e)?,
@@ -454,7 +465,6 @@ pub fn run_seed(
                 on_sets(&policy_checkpoint(scenario, learning, found.gains))?;
         }
     }
-    let lost = |evals: &[Evaluation]| evals.iter().map(|v| v.lost).sum();
 
     let closed = |dof: Dof| gap_closed(*j_sim.get(dof), *j_after.get(dof), *j_limit.get(dof));
     let to_half = |dof: Dof| {
@@ -578,7 +588,8 @@ pub struct Summary {
     /// Trials (learning and evaluation) that lost the cable, over all seeds.
     pub lost: u32,
     pub trials: u32,
-    /// Cables lost on the held-out sets over all seeds, per policy, of `held_out_trials` each.
+    /// Cables lost on the held-out sets over all seeds, per policy, of `held_out_trials` each (the
+    /// limit's: its two pairs', of twice as many).
     pub held_out_lost: HeldOutLost,
     pub held_out_trials: u32,
 }
@@ -624,10 +635,7 @@ fn dof_summary(results: &[SeedResult], dof: Dof, learning_trials: u32) -> DofSum
         median_held_out_gap_closed: stats::median(
             results.iter().map(|r| r.held_out_gap_closed(dof)),
         ),
-        limits_searched_on: results
-            .iter()
-            .filter(|r| !r.limit_rounds.is_empty())
-            .count(),
+        limits_searched_on: results.iter().filter(|r| r.limit_searched_on(dof)).count(),
         limits_beaten: results
             .iter()
             .filter(|r| r.limit_beaten.get(dof).is_some())
@@ -668,7 +676,7 @@ pub fn table(results: &[SeedResult], params: &BenchParams) -> String {
     let mark = |r: &SeedResult, dof: Dof| {
         if r.limit_beaten.get(dof).is_some() {
             "‡"
-        } else if !r.limit_rounds.is_empty() {
+        } else if r.limit_searched_on(dof) {
             "†"
         } else {
             ""
