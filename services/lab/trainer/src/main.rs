@@ -1084,7 +1084,7 @@ fn twin_limit(
             setup,
             &twin,
             search.eyes,
-            &format!("limit for {dof}"),
+            &trainer::report::held_out_limit_name(dof),
             pairs.get(dof),
             &sets,
             e,

@@ -57,6 +57,11 @@ pub const POLICIES: [(&str, PerDof<&str>); 3] = [
     ),
 ];
 
+/// The name of `dof`'s limit pair among the held-out policies `twin-limit/limit.json` records.
+pub fn held_out_limit_name(dof: Dof) -> String {
+    format!("limit for {dof}")
+}
+
 /// `DIR/summary.json`.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Summary {
@@ -372,11 +377,7 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
         evaluated(&eval_after),
         eval_limit.map(|dof, r| *evaluated(r).get(dof)),
     );
-    let per_dof = |f: &dyn Fn(Dof) -> f64| PerDof {
-        sway: f(Dof::Sway),
-        yaw: f(Dof::Yaw),
-    };
-    let closed = per_dof(&|d| gap_closed(*j_sim.get(d), *j_after.get(d), *j_limit.get(d)));
+    let closed = PerDof::from_fn(|d| gap_closed(*j_sim.get(d), *j_after.get(d), *j_limit.get(d)));
     let noise = PerDof {
         sway: gap_is_noise(j_sim.sway, j_limit.sway),
         yaw: gap_is_noise(j_sim.yaw, j_limit.yaw),
@@ -393,9 +394,12 @@ pub fn write(dir: &Path, scenario: &Scenario) -> Result<PathBuf> {
                     .with_context(|| format!("twin-limit/limit.json: no held-out policy `{name}`"))
             };
             let (s, a) = (find("sim")?, find("after")?);
-            let l = limit_on_sets(&find("limit for sway")?, &find("limit for yaw")?);
+            let l = limit_on_sets(
+                &find(&held_out_limit_name(Dof::Sway))?,
+                &find(&held_out_limit_name(Dof::Yaw))?,
+            );
             Some(HeldOutSummary {
-                gap_closed: per_dof(&|d| {
+                gap_closed: PerDof::from_fn(|d| {
                     gap_closed(*s.mean.get(d), *a.mean.get(d), *l.mean.get(d))
                 }),
                 // The noise the limit's run checked with (its candidates and the search's start on

@@ -21,7 +21,8 @@
 //! over the held-out sets of a difference between the simulation policy, the final one and the
 //! DOF's bench limit pair, of those that kept the cable there: [`twin_limit::check_noise`]), that
 //! DOF's search goes on from it ([`twin_limit::find_in`], on the seed's own search set) and the
-//! seed's row reports that limit if less beaten. A row's limit still beaten after the search's rounds is marked in the table.
+//! seed's row reports that limit if less beaten. A row's limit still beaten after the search's
+//! rounds is marked in the table.
 //!
 //! **Shards**: a seed's row depends on its seed alone (and the bench's limit, searched from a fixed
 //! seed), so seeds run in any order, on any thread or machine: `--shard K/N` runs every N-th seed
@@ -234,10 +235,7 @@ pub fn step_one(
 /// The gains of a checkpoint's policies.
 pub fn gains(c: &Checkpoint) -> PerDof<[f64; 2]> {
     let g = |dof| c.get(dof).map_or([f64::NAN; 2], |s| s.policy.gain);
-    PerDof {
-        sway: g(Dof::Sway),
-        yaw: g(Dof::Yaw),
-    }
+    PerDof::from_fn(g)
 }
 
 /// A session's learning and evaluation trials (started from the policy `initial`): the curve of
@@ -479,10 +477,7 @@ pub fn run_seed(
         points.iter().find(|p| half(p)).map(|p| p.learning_trials)
     };
     let last_trial = run.last().expect("one trial at least");
-    let trials_to_half = PerDof {
-        sway: to_half(Dof::Sway),
-        yaw: to_half(Dof::Yaw),
-    };
+    let trials_to_half = PerDof::from_fn(to_half);
     Ok(SeedResult {
         seed,
         sim_gains,
@@ -497,10 +492,7 @@ pub fn run_seed(
         bench_limit: bench_j,
         limit_beaten,
         check_noise: noise,
-        gap_closed: PerDof {
-            sway: closed(Dof::Sway),
-            yaw: closed(Dof::Yaw),
-        },
+        gap_closed: PerDof::from_fn(closed),
         trials_to_half,
         session_trials: session,
         lost: run.iter().filter(|t| t.lost).count() as u32,
