@@ -9,15 +9,24 @@
 //! A behaviour built [`Behaviour::for_step_two`] runs step two's protocol on top (see
 //! [`crate::step_two`]): each trial is a learning or an evaluation trial, every actor update passes
 //! the safety guard, and each evaluation is judged against the best pair of policies so far, on the
-//! pair's cost it sums from the observations both behaviours get ([`learning::state_costs`]), so that
-//! the sway and yaw behaviours keep and restore the policies of one and the same evaluation.
+//! pair's cost, so that the sway and yaw behaviours keep and restore the policies of one and the
+//! same evaluation. Each sums it apart, alike: the state costs from the observations both get
+//! ([`learning::state_costs`]), the action costs from its own commands and its partner's
+//! ([`learning::action_costs`]; the partner's come in through [`Behaviour::partner_command`]).
 
 use crate::step_two::{SAFETY_ENVELOPE, StepTwo, TrialKind, guard};
 use config::{Dof, LearningParams, PerDof, QuadraticCost, Scenario};
 use learning::lqr::LqrError;
-use learning::{Agent, AgentState, Algorithm, EpisodeSummary, Evaluated, Verdict, state_costs};
+use learning::{
+    Agent, AgentState, Algorithm, EpisodeSummary, Evaluated, Verdict, action_costs, state_costs,
+};
 use messages::{CableObservationMsg, DofCommand, LearningStats, Stamp, StepStatus};
 use model::CableObservation;
+use std::collections::VecDeque;
+
+/// The partner's commands a behaviour keeps to find the one of its last step: one comes per step,
+/// and the shell hands them in before each observation; the rest is slack for re-sends.
+const PARTNER_COMMANDS: usize = 8;
 
 /// A fresh agent for `dof`, built exactly as the in-process trainer builds it: the configured
 /// initial gain, the scenario's reward and observation box, exploration seeded by `seed` (the
@@ -117,10 +126,19 @@ pub struct Behaviour {
     /// to restore, it was restored and the trial goes on with it without learning; without one, the
     /// trial goes on learning. Either way the envelope is not looked at again in this trial.
     left_envelope: bool,
-    /// Step two: both DOFs' rewards (the scenario's), whose state costs make the pair's cost.
+    /// Step two: both DOFs' rewards (the scenario's), whose state and action costs make the
+    /// pair's cost.
     rewards: Option<PerDof<QuadraticCost>>,
     /// Step two: the last evaluation judged, the trial that closed it and the pair's score there.
     judged: Option<(u32, f64)>,
+    /// Step two: the partner DOF's latest commands, (seq, action applied), oldest first.
+    partner: VecDeque<(u64, f64)>,
+    /// Step two, in an evaluation trial: the last step's seq and this behaviour's command, whose
+    /// action costs the next step of the trial adds.
+    previous: Option<(u64, f64)>,
+    /// Step two: steps of the evaluation in progress whose partner command was not there (its
+    /// action cost taken as 0).
+    partner_missing: u32,
 }
 
 impl Behaviour {
@@ -134,6 +152,9 @@ impl Behaviour {
             left_envelope: false,
             rewards: None,
             judged: None,
+            partner: VecDeque::new(),
+            previous: None,
+            partner_missing: 0,
         }
     }
 
@@ -159,7 +180,24 @@ impl Behaviour {
                 yaw: scenario.reward.yaw,
             }),
             judged: None,
+            partner: VecDeque::new(),
+            previous: None,
+            partner_missing: 0,
         })
+    }
+
+    /// The partner DOF's command of a step (its `command/...` topic), for the action term of the
+    /// pair's cost; hand each in as it comes, before the next observation (a repeated one is
+    /// ignored). In lockstep the partner's command of step t is out before the observation of
+    /// t + 1 is; on the vehicle, one camera period before it.
+    pub fn partner_command(&mut self, command: &DofCommand) {
+        if self.rewards.is_none() || self.partner.iter().any(|(s, _)| *s == command.stamp.seq) {
+            return;
+        }
+        if self.partner.len() == PARTNER_COMMANDS {
+            self.partner.pop_front();
+        }
+        self.partner.push_back((command.stamp.seq, command.value));
     }
 
     /// Step two's protocol, if the behaviour runs it.
@@ -234,21 +272,45 @@ impl Behaviour {
         if status == StepStatus::Running && obs.found {
             self.guard_envelope(&obs, msg.stamp.episode);
         }
-        if let Some(rewards) = &self.rewards
-            && obs.found
-            && self.kind.is_evaluation()
+        let evaluating = self.rewards.is_some() && self.kind.is_evaluation();
+        if let Some(rewards) = self.rewards
+            && evaluating
         {
-            // The pair's cost, from what both behaviours see alike.
-            let states = PerDof {
-                sway: obs.state(Dof::Sway),
-                yaw: obs.state(Dof::Yaw),
-            };
-            let step = state_costs(rewards, states);
-            let sum = &mut self.agent.safety_mut().evaluation_cost;
-            sum.sway += step.sway;
-            sum.yaw += step.yaw;
+            // The pair's cost, summed by both behaviours in the same order from the same numbers:
+            // the last step's commands (the return's action term of that step), then this step's
+            // observed states.
+            if let Some((seq, own)) = self.previous.take() {
+                let partner = match self.partner.iter().find(|(s, _)| *s == seq) {
+                    Some(&(_, value)) => value,
+                    None => {
+                        self.partner_missing += 1;
+                        0.0
+                    }
+                };
+                let dof = self.dof();
+                let actions = PerDof {
+                    sway: if dof == Dof::Sway { own } else { partner },
+                    yaw: if dof == Dof::Yaw { own } else { partner },
+                };
+                let step = action_costs(&rewards, actions);
+                let sum = &mut self.agent.safety_mut().evaluation_cost;
+                sum.sway += step.sway;
+                sum.yaw += step.yaw;
+            }
+            if obs.found {
+                let states = PerDof {
+                    sway: obs.state(Dof::Sway),
+                    yaw: obs.state(Dof::Yaw),
+                };
+                let step = state_costs(&rewards, states);
+                let sum = &mut self.agent.safety_mut().evaluation_cost;
+                sum.sway += step.sway;
+                sum.yaw += step.yaw;
+            }
         }
         let (action, episode) = behave(&mut self.agent, &obs, status);
+        self.previous =
+            (evaluating && status == StepStatus::Running).then_some((msg.stamp.seq, action));
         Output {
             command: DofCommand {
                 stamp: msg.stamp,
@@ -284,12 +346,14 @@ impl Behaviour {
     /// Step two: sets the agent up for trial `trial` (learning or not, its exploration noise).
     fn begin_trial(&mut self, trial: u32) {
         self.left_envelope = false;
+        self.previous = None;
         let Some(s) = &self.step_two else { return };
         self.kind = s.kind(trial);
         let seed = s.noise_seed(trial, self.kind);
         let learning = s.learning && !self.kind.is_evaluation();
         if self.kind == (TrialKind::Evaluation { slot: 0 }) {
             // A new evaluation: whatever an earlier, unfinished one summed is not part of it.
+            self.partner_missing = 0;
             let safety = self.agent.safety_mut();
             (
                 safety.evaluation_sum,
@@ -349,6 +413,15 @@ impl Behaviour {
                 safety.evaluation_lost,
                 safety.evaluation_cost,
             ) = (0.0, 0, 0, PerDof::default());
+            let missing = std::mem::take(&mut self.partner_missing);
+            if missing > 0 && n == wanted {
+                tracing::warn!(
+                    dof = %self.dof(),
+                    trial = stamp.episode,
+                    steps = missing,
+                    "the partner's commands of some steps of this evaluation were not there: their action cost is taken as 0 (the partner's verdict may differ)"
+                );
+            }
             if n != wanted {
                 tracing::warn!(
                     dof = %self.dof(),
@@ -756,6 +829,9 @@ mod tests {
             for m in offset_trial(trial as u32, &mut seq, offset) {
                 let (s, y) = (sway.step(&m), yaw.step(&m));
                 yaw_restarted.step(&m);
+                sway.partner_command(&y.command);
+                yaw.partner_command(&s.command);
+                yaw_restarted.partner_command(&s.command);
                 closed = closed.or(s.stats.zip(y.stats));
             }
             let (s, y) = closed.expect("the trial ended");
@@ -790,6 +866,63 @@ mod tests {
         assert_eq!(bests, vec![0, 2, 2, 6, 6]);
         assert_eq!(verdicts, vec![0, 0, 1, 0, 1]);
         assert_ne!(sway.agent().safety().scale, PerDof::default());
+    }
+
+    /// The pair's cost of an evaluation is each DOF's return's cost: the observed states' `x'Qx`
+    /// and the commands' `r u^2`, this behaviour's own and its partner's as they came in. A
+    /// partner's command that never came counts as 0 (the allocator applies none).
+    #[test]
+    fn the_pair_cost_counts_both_dofs_commands() {
+        let (scenario, _) = params();
+        let rewards = scenario.reward;
+        let mut b = step_two_of(Dof::Sway);
+        let mut seq = 0;
+        let trial = offset_trial(0, &mut seq, (0.2, 0.3));
+        let partner = |seq: u64| 0.1 + 0.01 * seq as f64;
+        let mut expected = PerDof::<f64>::default();
+        for (i, m) in trial.iter().enumerate() {
+            let o = m.observation();
+            if o.found {
+                let (x, th) = (o.state(Dof::Sway), o.state(Dof::Yaw));
+                let (qs, qy) = (rewards.sway.q, rewards.yaw.q);
+                expected.sway += qs[0] * x[0] * x[0] + qs[1] * x[1] * x[1];
+                expected.yaw += qy[0] * th[0] * th[0] + qy[1] * th[1] * th[1];
+            }
+            let own = b.step(m).command.value;
+            // Step 12's yaw command is lost on the way.
+            if i != 12 {
+                b.partner_command(&DofCommand {
+                    stamp: m.stamp,
+                    value: partner(m.stamp.seq),
+                });
+            }
+            if m.stamp.status() == StepStatus::Running {
+                expected.sway += rewards.sway.r * own * own;
+                if i != 12 {
+                    expected.yaw += rewards.yaw.r * partner(m.stamp.seq).powi(2);
+                }
+            }
+        }
+        let best = b
+            .agent()
+            .safety()
+            .best
+            .expect("the first evaluation is the best");
+        assert_eq!(best.trial, 0);
+        for dof in Dof::ALL {
+            let (got, want) = (best.cost.get(dof), expected.get(dof));
+            assert!(
+                (got - want).abs() < 1e-12 * want,
+                "{dof}: {got} against {want}"
+            );
+        }
+        // The partner's commands weigh far beyond the comparison's tolerance: leaving them out fails.
+        let actions = rewards.yaw.r * (0..30).map(|s| partner(s).powi(2)).sum::<f64>();
+        assert!(
+            actions > 1e-6 * expected.yaw,
+            "{actions} of {}",
+            expected.yaw
+        );
     }
 
     #[test]

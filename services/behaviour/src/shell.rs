@@ -223,6 +223,11 @@ pub fn serve(rt: &Runtime, dof: Dof, args: &Args) -> anyhow::Result<()> {
     };
 
     let observations = rt.inbox(&topics::CABLE_OBSERVATION)?;
+    // Step two's pair cost counts the partner's commands too.
+    let partner = args
+        .step_two
+        .then(|| rt.inbox(&topics::command(dof.partner())))
+        .transpose()?;
     let commands = rt.outbox(&topics::command(dof))?;
     let stats = rt.outbox(&topics::learning(dof))?;
     let limits = rt.scenario().observation.clone();
@@ -233,6 +238,12 @@ pub fn serve(rt: &Runtime, dof: Dof, args: &Args) -> anyhow::Result<()> {
         &observations,
         &mut behaviour,
         |behaviour, msg| {
+            // The partner's commands up to the last step are out before this step's observation.
+            if let Some(partner) = &partner {
+                while let Some(command) = partner.receive()? {
+                    behaviour.partner_command(&command);
+                }
+            }
             // A learner never sees a value outside the observation box, nor a NaN.
             let (observation, fixes) = msg.observation.bounded(&limits);
             bad.note(fixes, msg.stamp.seq, clock.now_ns());

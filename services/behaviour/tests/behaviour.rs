@@ -544,6 +544,67 @@ fn sigint_saves_too(dof: Dof) {
     );
 }
 
+/// With `--step-two`, the pair's cost an evaluation is judged on counts the partner's commands,
+/// read from the partner's command topic: the process keeps the best pair an in-test step-two
+/// behaviour keeps when handed the same observations and partner commands, bit for bit, and not
+/// the one it would keep without them.
+fn step_two_counts_the_partners_commands(dof: Dof) {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join(format!("{dof}.ckpt"));
+    let mut rig = Rig::start(
+        dof,
+        "blp",
+        &[
+            "--step-two",
+            "--checkpoint",
+            arg(&file),
+            "--save-every",
+            "0",
+        ],
+    );
+    let partner = rig.probe.outbox(&topics::command(dof.partner()));
+    assert!(
+        rig.probe.wait_for_subscribers(&partner, 1, T),
+        "{dof}-behaviour does not read its partner's commands"
+    );
+    let (params, scenario) = (learning(), scenario());
+    let reference = || {
+        let seed = stream_seed(dof);
+        let agent = trainer_agent(dof, Algorithm::Nac, &params);
+        let s = behaviour::StepTwo::new(&params, true, seed, seed);
+        behaviour::Behaviour::for_step_two(agent, s, &scenario).unwrap()
+    };
+    let (mut with, mut without) = (reference(), reference());
+    let mut seq = 1;
+    for trial in 0..params.evaluation.trials {
+        for m in episode(seq, trial, 20, StepStatus::TimeLimit, &[4]) {
+            let command = rig.command(&m);
+            let out = with.step(&m);
+            without.step(&m);
+            assert_eq!(command.to_bits(), out.command.value.to_bits(), "{m:?}");
+            // The partner's command of this step, out before the next observation as in lockstep.
+            let p = DofCommand {
+                stamp: m.stamp,
+                value: 0.6 * (0.3 * m.stamp.seq as f64).cos(),
+            };
+            partner.send(p).unwrap();
+            with.partner_command(&p);
+        }
+        seq += 21;
+    }
+    rig.stop();
+    let best = |s: &AgentState| s.safety.best.expect("the evaluation was judged");
+    let saved = best(&Checkpoint::load_dof(&file, dof).unwrap());
+    let (with, without) = (best(&with.checkpoint()), best(&without.checkpoint()));
+    assert_eq!(saved.trial, params.evaluation.trials - 1);
+    let bits = |c: config::PerDof<f64>| [c.sway.to_bits(), c.yaw.to_bits()];
+    assert_eq!(bits(saved.cost), bits(with.cost));
+    assert!(
+        saved.cost.get(dof.partner()) > without.cost.get(dof.partner()),
+        "{saved:?} against {without:?}"
+    );
+}
+
 macro_rules! for_both_dofs {
     ($($test:ident),* $(,)?) => {
         mod sway {
@@ -567,4 +628,5 @@ for_both_dofs!(
     exits_with_both_reasons_when_no_checkpoint_loads,
     refuses_a_checkpoint_of_another_algorithm,
     a_repeated_observation_gets_the_same_command_and_no_second_step,
+    step_two_counts_the_partners_commands,
 );

@@ -58,6 +58,14 @@ pub enum Dof {
 impl Dof {
     pub const ALL: [Dof; 2] = [Dof::Sway, Dof::Yaw];
 
+    /// The other learned DOF.
+    pub fn partner(self) -> Dof {
+        match self {
+            Dof::Sway => Dof::Yaw,
+            Dof::Yaw => Dof::Sway,
+        }
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             Dof::Sway => "sway",

@@ -27,7 +27,10 @@
 //!   weights taken from the next evaluation.
 //! - version 4: no parameters of step two's own learner (`LearningParams::step_two`); read with
 //!   their defaults.
-//! - version 5: the current format.
+//! - versions 4 and 5: the pair's costs (`BestPolicy::cost`, `SafetyState::evaluation_cost`,
+//!   `scale`) are state costs only, without the action term; read like version 3's, with the
+//!   best's pair unknown and the weights taken from the next evaluation.
+//! - version 6: the current format.
 //!
 //! Saving writes a temporary file in the target's directory, syncs it, renames it over the target and
 //! syncs the directory: a crash leaves either the old checkpoint or the new one, never a mix.
@@ -43,7 +46,7 @@ use std::path::{Path, PathBuf};
 /// The first bytes of every checkpoint file.
 pub const MAGIC: [u8; 8] = *b"CTRKCKPT";
 /// The format this code writes, and the newest it reads.
-pub const FORMAT_VERSION: u32 = 5;
+pub const FORMAT_VERSION: u32 = 6;
 /// Magic, version, payload length, CRC.
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 4;
 
@@ -434,7 +437,7 @@ impl Checkpoint {
             path: path.to_owned(),
             source,
         };
-        let (checkpoint, used): (Checkpoint, usize) = if version == 1 {
+        let (mut checkpoint, used): (Checkpoint, usize) = if version == 1 {
             let (old, used): (v1::Checkpoint, usize) =
                 bincode::serde::decode_from_slice(&payload, bincode::config::standard())
                     .map_err(decode_err)?;
@@ -462,6 +465,14 @@ impl Checkpoint {
             return Err(corrupt(Corruption::TrailingBytes {
                 extra: (payload.len() - used) as u64,
             }));
+        }
+        if version == 4 || version == 5 {
+            for s in [checkpoint.sway.as_mut(), checkpoint.yaw.as_mut()]
+                .into_iter()
+                .flatten()
+            {
+                s.safety = forget_pair_costs(s.safety);
+            }
         }
         checkpoint.check(path)?;
         Ok(checkpoint)
@@ -747,6 +758,24 @@ mod v4 {
                 ..Default::default()
             }
         }
+    }
+}
+
+/// A safety state whose pair's costs left out the action term (formats 4 and 5), as one that
+/// knows none: the best's pair unknown (infinitely costly: the next evaluation judged replaces
+/// it), no weights (the next evaluation's costs are), the evaluation in progress started again.
+fn forget_pair_costs(s: SafetyState) -> SafetyState {
+    SafetyState {
+        best: s.best.map(|b| crate::safety::BestPolicy {
+            cost: config::PerDof::both(f64::INFINITY),
+            ..b
+        }),
+        evaluation_sum: 0.0,
+        evaluation_trials: 0,
+        evaluation_lost: 0,
+        evaluation_cost: config::PerDof::default(),
+        scale: config::PerDof::default(),
+        ..s
     }
 }
 
@@ -1238,11 +1267,66 @@ mod tests {
         assert_eq!(Checkpoint::load(&path).unwrap(), now);
     }
 
+    /// A file of format 5 (the pair's costs without the action term) loads with everything as
+    /// saved but those costs: the best's pair unknown, no weights, no evaluation in progress.
+    #[test]
+    fn a_format_5_checkpoint_loads_with_its_pair_costs_forgotten() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.ckpt");
+        let mut saved = both();
+        let best = crate::safety::BestPolicy {
+            gain: [-1.0, -0.2],
+            evaluated: -3.5,
+            cost: config::PerDof {
+                sway: 2.0,
+                yaw: 1.0,
+            },
+            trial: 7,
+        };
+        for s in [saved.sway.as_mut(), saved.yaw.as_mut()]
+            .into_iter()
+            .flatten()
+        {
+            s.safety = SafetyState {
+                rollbacks: 2,
+                evaluations: 3,
+                best: Some(best),
+                evaluation_sum: -1.5,
+                evaluation_trials: 1,
+                evaluation_cost: config::PerDof {
+                    sway: 0.5,
+                    yaw: 0.25,
+                },
+                scale: config::PerDof {
+                    sway: 2.5,
+                    yaw: 1.5,
+                },
+                ..Default::default()
+            };
+        }
+        let c = bincode::config::standard();
+        let payload = bincode::serde::encode_to_vec(&saved, c).unwrap();
+        fs::write(&path, file_of(5, &payload)).unwrap();
+        let loaded = Checkpoint::load(&path).unwrap();
+        let safety = loaded.sway.as_ref().unwrap().safety;
+        assert_eq!((safety.rollbacks, safety.evaluations), (2, 3));
+        let forgotten = safety.best.unwrap();
+        assert_eq!((forgotten.gain, forgotten.trial), (best.gain, best.trial));
+        assert_eq!(forgotten.cost, config::PerDof::both(f64::INFINITY));
+        assert_eq!(safety.scale, config::PerDof::default());
+        assert_eq!(safety.evaluation_cost, config::PerDof::default());
+        assert_eq!((safety.evaluation_sum, safety.evaluation_trials), (0.0, 0));
+        assert_eq!(loaded.yaw.unwrap().safety, safety);
+        // The same payload as the current format keeps them.
+        fs::write(&path, file_of(FORMAT_VERSION, &payload)).unwrap();
+        assert_eq!(Checkpoint::load(&path).unwrap(), saved);
+    }
+
     #[test]
     fn the_header_is_the_documented_layout() {
         let (_dir, _path, bytes) = saved_bytes();
         assert_eq!(&bytes[..8], b"CTRKCKPT");
-        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 5);
+        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 6);
         let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
         assert_eq!(len as usize, bytes.len() - HEADER_LEN);
         let crc = u32::from_le_bytes(bytes[20..24].try_into().unwrap());

@@ -37,5 +37,5 @@ pub use nac::{GradientHistory, Nac, NacConfig, NacStatistics};
 pub use policy::LinearGaussian;
 pub use safety::{
     BestPolicy, Evaluated, KeepBest, Review, SafetyState, StableSet, TrustRegion, UpdateGuard,
-    Verdict, pair_scale, pair_score, state_costs,
+    Verdict, action_costs, pair_scale, pair_score, state_costs,
 };

@@ -25,16 +25,15 @@
 //! other DOF's policy (sway moves the image under yaw's Theta), so each behaviour keeping the best
 //! of its own returns can end with a pair never evaluated together, worse than either evaluation
 //! said. Each behaviour therefore judges the pair, and both must reach the same verdict on every
-//! evaluation, so that they restore the policies of one and the same evaluation. Both see the same
-//! observations (every behaviour gets every cable observation, x_g and Theta alike), so the pair's
-//! cost is computed from them: each DOF's state cost `x'Qx` of the scenario's reward, summed over the
-//! evaluation's observed steps ([`state_costs`]). The behaviours compute it apart, with the same
-//! operations on the same numbers, and get the same bits: no message between them, no wait, and a
-//! behaviour whose partner only acts or is absent judges the same pair cost (the partner's DOF is
-//! still observed, whatever steers it). The action term of the reward is left out: a behaviour does
-//! not see its partner's commands. It is not small with images, where the commands follow a noisy
-//! x_g: about 40% of sway's return and 12% of yaw's (the main job's seed 2). So the rule bounds a
-//! DOF's state cost, not its return, and a pair within the tolerance can cost a DOF's return more.
+//! evaluation, so that they restore the policies of one and the same evaluation. The pair's cost is
+//! each DOF's return's cost, summed over the evaluation: its state cost `x'Qx` of the scenario's
+//! reward at each observed step ([`state_costs`]; every behaviour gets every cable observation, x_g
+//! and Theta alike) and its action term `r u^2` of each command it gave ([`action_costs`]; a
+//! behaviour reads its partner's commands, stamped by step). The behaviours compute it apart, with
+//! the same operations on the same numbers in the same order, and get the same bits. The action
+//! term is not small with images, where the commands follow a noisy x_g: about 40% of sway's return
+//! and 12% of yaw's (the main job's seed 2); a rule on state costs alone let a pair within the
+//! tolerance cost a DOF's return more.
 //!
 //! Each DOF's cost counts relative to its cost in the first evaluation of the session (the
 //! simulation policies on the vehicle): [`pair_score`] is minus the sum of the two ratios (-2 for the
@@ -215,14 +214,25 @@ pub struct BestPolicy {
     pub trial: u32,
 }
 
-/// One observed step's share of the pair's cost (see the module docs): each DOF's state cost
-/// `x'Qx` of `rewards` (the scenario's) at its observed (position, rate) `states`. An evaluation's
-/// pair cost is, per DOF, the mean over its trials of the sum over their observed steps.
+/// One observed step's state share of the pair's cost (see the module docs): each DOF's state
+/// cost `x'Qx` of `rewards` (the scenario's) at its observed (position, rate) `states`. An
+/// evaluation's pair cost is, per DOF, the mean over its trials of the sum over their steps of
+/// this and [`action_costs`].
 pub fn state_costs(rewards: &PerDof<QuadraticCost>, states: PerDof<[f64; 2]>) -> PerDof<f64> {
     let c = |dof: Dof| {
         let (q, x) = (rewards.get(dof).q, states.get(dof));
         q[0] * x[0] * x[0] + q[1] * x[1] * x[1]
     };
+    PerDof {
+        sway: c(Dof::Sway),
+        yaw: c(Dof::Yaw),
+    }
+}
+
+/// One step's action share of the pair's cost: each DOF's `r u^2` of `rewards` for the command
+/// `actions` it gave at that step (the action applied, as the return counts it).
+pub fn action_costs(rewards: &PerDof<QuadraticCost>, actions: PerDof<f64>) -> PerDof<f64> {
+    let c = |dof: Dof| rewards.get(dof).r * actions.get(dof) * actions.get(dof);
     PerDof {
         sway: c(Dof::Sway),
         yaw: c(Dof::Yaw),
@@ -405,7 +415,7 @@ pub struct SafetyState {
     pub evaluation_trials: u32,
     /// ... and those of them that lost the cable, ...
     pub evaluation_lost: u32,
-    /// ... and the pair's cost so far (each DOF's state cost summed over the observed steps).
+    /// ... and the pair's cost so far (each DOF's state and action costs summed over its steps).
     pub evaluation_cost: PerDof<f64>,
     /// Each DOF's cost in the session's first evaluation judged: the weights of the pair's score
     /// (0 before it).
@@ -731,7 +741,7 @@ mod tests {
     }
 
     #[test]
-    fn the_pair_cost_of_a_step_is_each_dofs_state_cost() {
+    fn the_pair_cost_of_a_step_is_each_dofs_state_and_action_cost() {
         let rewards = PerDof {
             sway: QuadraticCost {
                 q: [1.1, 0.2],
@@ -751,6 +761,15 @@ mod tests {
         );
         assert!((c.sway - (1.1 * 0.01 + 0.2 * 0.04)).abs() < 1e-15);
         assert!((c.yaw - (2.0 * 0.09 + 0.25 * 0.16)).abs() < 1e-15);
+        let a = action_costs(
+            &rewards,
+            PerDof {
+                sway: -0.5,
+                yaw: 0.2,
+            },
+        );
+        assert!((a.sway - 0.01 * 0.25).abs() < 1e-15);
+        assert!((a.yaw - 0.01 * 0.04).abs() < 1e-15);
         assert_eq!(
             pair_scale(PerDof {
                 sway: 0.0,

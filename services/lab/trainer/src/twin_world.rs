@@ -239,6 +239,9 @@ impl TwinWorld {
             }
             let sway = self.behaviours.sway.step(&msg);
             let yaw = self.behaviours.yaw.step(&msg);
+            // Each behaviour sees its partner's command, as over the command topics.
+            self.behaviours.sway.partner_command(&yaw.command);
+            self.behaviours.yaw.partner_command(&sway.command);
             stats.sway = stats.sway.or(sway.stats);
             stats.yaw = stats.yaw.or(yaw.stats);
             let surge = self.surge.command(&obs);
