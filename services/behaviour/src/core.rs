@@ -287,25 +287,16 @@ impl Behaviour {
                         0.0
                     }
                 };
-                let dof = self.dof();
-                let actions = PerDof {
-                    sway: if dof == Dof::Sway { own } else { partner },
-                    yaw: if dof == Dof::Yaw { own } else { partner },
-                };
-                let step = action_costs(&rewards, actions);
-                let sum = &mut self.agent.safety_mut().evaluation_cost;
-                sum.sway += step.sway;
-                sum.yaw += step.yaw;
+                let mut actions = PerDof::both(partner);
+                *actions.get_mut(self.dof()) = own;
+                self.add_to_evaluation_cost(action_costs(&rewards, actions));
             }
             if obs.found {
                 let states = PerDof {
                     sway: obs.state(Dof::Sway),
                     yaw: obs.state(Dof::Yaw),
                 };
-                let step = state_costs(&rewards, states);
-                let sum = &mut self.agent.safety_mut().evaluation_cost;
-                sum.sway += step.sway;
-                sum.yaw += step.yaw;
+                self.add_to_evaluation_cost(state_costs(&rewards, states));
             }
         }
         let (action, episode) = behave(&mut self.agent, &obs, status);
@@ -341,6 +332,13 @@ impl Behaviour {
         // Once per trial: with nothing to restore, the trial goes on learning, and the next steps
         // outside the envelope would say the same again.
         self.left_envelope = true;
+    }
+
+    /// Step two: adds one step's share `step` to the pair's cost of the evaluation in progress.
+    fn add_to_evaluation_cost(&mut self, step: PerDof<f64>) {
+        let sum = &mut self.agent.safety_mut().evaluation_cost;
+        sum.sway += step.sway;
+        sum.yaw += step.yaw;
     }
 
     /// Step two: sets the agent up for trial `trial` (learning or not, its exploration noise).
