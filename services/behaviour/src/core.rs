@@ -292,10 +292,7 @@ impl Behaviour {
                 self.add_to_evaluation_cost(action_costs(&rewards, actions));
             }
             if obs.found {
-                let states = PerDof {
-                    sway: obs.state(Dof::Sway),
-                    yaw: obs.state(Dof::Yaw),
-                };
+                let states = PerDof::from_fn(|dof| obs.state(dof));
                 self.add_to_evaluation_cost(state_costs(&rewards, states));
             }
         }
