@@ -1136,6 +1136,10 @@ fn twin_limit(
                 b.noise,
                 found.get(dof).rounds.len()
             )?,
+            (None, _) if found.get(dof).candidate.is_some() => cli::outln!(
+                "{dof:>4}: check: no round found the return of {}; its own gains are the limit",
+                found.get(dof).candidate.as_deref().unwrap_or_default()
+            )?,
             (None, Some(c)) => cli::outln!(
                 "{dof:>4}: check: above every candidate beyond the noise (best: {} at {:.4}, noise {:.4})",
                 c.name,
@@ -1167,7 +1171,12 @@ fn twin_limit(
             "evaluation": found.0.map(|_, l| evaluation_json(&l.evaluation)),
             "lqr": { "gains": lqr, "evaluation": evaluation_json(&lqr_eval) },
             "search": { "params": search, "rounds": rounds },
-            "check": { "candidates": scored, "noise": noise, "beaten": found.beaten() },
+            "check": {
+                "candidates": scored,
+                "noise": noise,
+                "beaten": found.beaten(),
+                "limit_is_candidate": found.0.map(|_, l| l.candidate.clone()),
+            },
             "held_out": { "sets": sets, "policies": held },
         }),
     )

@@ -21,8 +21,8 @@
 //! over the held-out sets of a difference between the simulation policy, the final one and the
 //! DOF's bench limit pair, of those that kept the cable there: [`twin_limit::check_noise`]), that
 //! DOF's search goes on from it ([`twin_limit::find_in`], on the seed's own search set) and the
-//! seed's row reports that limit if less beaten. A row's limit still beaten after the search's
-//! rounds is marked in the table.
+//! seed's row reports that limit if less beaten; where no round found the policy's return, the
+//! policy's own gains are the row's limit. A row's limit still beaten then is marked in the table.
 //!
 //! **Shards**: a seed's row depends on its seed alone (and the bench's limit, searched from a fixed
 //! seed), so seeds run in any order, on any thread or machine: `--shard K/N` runs every N-th seed
@@ -129,6 +129,10 @@ pub struct SeedResult {
     pub bench_limit: PerDof<f64>,
     /// A policy of the seed still above the row's limit beyond the noise, per DOF.
     pub limit_beaten: PerDof<Option<Beaten>>,
+    /// Per DOF, the policy of the seed whose own gains are the row's limit, where no round of the
+    /// search found its return ([`twin_limit::DofLimit::candidate`]).
+    #[serde(default)]
+    pub limit_candidate: PerDof<Option<String>>,
     /// The noise the limit's check allowed ([`twin_limit::check_noise`] of the simulation policy,
     /// step two's and the DOF's bench limit pair on the held-out sets; NaN without them).
     #[serde(default = "unmeasured", deserialize_with = "nan_per_dof")]
@@ -418,6 +422,7 @@ pub fn run_seed(
     let mut j_limit = bench_j;
     let mut limit_rounds = Vec::new();
     let mut limit_beaten = PerDof::default();
+    let mut limit_candidate = PerDof::default();
     let mut held_limit = PerDof::default();
     for dof in Dof::ALL {
         let bench_pair = bench_limit.get(dof);
@@ -459,6 +464,7 @@ pub fn run_seed(
             *limit_gains.get_mut(dof) = found.gains;
             *j_limit.get_mut(dof) = j;
             *limit_beaten.get_mut(dof) = found.beaten;
+            *limit_candidate.get_mut(dof) = found.candidate;
             *held_limit.get_mut(dof) =
                 on_sets(&policy_checkpoint(scenario, learning, found.gains))?;
         }
@@ -491,6 +497,7 @@ pub fn run_seed(
         limit_rounds,
         bench_limit: bench_j,
         limit_beaten,
+        limit_candidate,
         check_noise: noise,
         gap_closed: PerDof::from_fn(closed),
         trials_to_half,
@@ -565,9 +572,12 @@ pub struct DofSummary {
     pub median_held_out_improvement: f64,
     /// The gap closed on the held-out sets (their mean returns), median over seeds.
     pub median_held_out_gap_closed: f64,
-    /// Seeds whose policies beat the bench's limit beyond the noise (their search went on), and
-    /// those whose limit a policy of theirs still beats beyond it.
+    /// Seeds whose policies beat the bench's limit beyond the noise (their search went on), those
+    /// whose limit is then a policy of theirs, and those whose limit a policy of theirs still
+    /// beats beyond it.
     pub limits_searched_on: usize,
+    #[serde(default)]
+    pub limits_from_candidates: usize,
     pub limits_beaten: usize,
 }
 
@@ -628,6 +638,10 @@ fn dof_summary(results: &[SeedResult], dof: Dof, learning_trials: u32) -> DofSum
             results.iter().map(|r| r.held_out_gap_closed(dof)),
         ),
         limits_searched_on: results.iter().filter(|r| r.limit_searched_on(dof)).count(),
+        limits_from_candidates: results
+            .iter()
+            .filter(|r| r.limit_candidate.get(dof).is_some())
+            .count(),
         limits_beaten: results
             .iter()
             .filter(|r| r.limit_beaten.get(dof).is_some())
@@ -663,11 +677,13 @@ pub fn table(results: &[SeedResult], params: &BenchParams) -> String {
     let mut t = String::new();
     let pct = |v: f64| format!("{:.0}%", 100.0 * v);
     let half = |v: Option<u32>| v.map_or("–".to_owned(), |v| v.to_string());
-    // A row's limit: † where its search went on from a policy of the seed, ‡ where one still
-    // beats it beyond the noise.
+    // A row's limit: † where its search went on from a policy of the seed, § where that policy's
+    // own gains are the limit, ‡ where one still beats it beyond the noise.
     let mark = |r: &SeedResult, dof: Dof| {
         if r.limit_beaten.get(dof).is_some() {
             "‡"
+        } else if r.limit_candidate.get(dof).is_some() {
+            "§"
         } else if r.limit_searched_on(dof) {
             "†"
         } else {
@@ -731,7 +747,7 @@ pub fn table(results: &[SeedResult], params: &BenchParams) -> String {
             t,
             "{dof:>4}: gap (J_limit - J_sim)/|J_sim| median {}; gap closed median {}, worst {}; trials to half the gap median {}; \
              worse than the simulation policy on its set: {} seeds; on the held-out sets beyond twice the seed's noise (median {:.4}): {}; held-out improvement median {:+.4}, \
-             held-out gap closed median {}; the limit's search went on in {} seeds (†), still beaten beyond the noise in {} (‡)",
+             held-out gap closed median {}; the limit's search went on in {} seeds (†), the limit a policy of the seed's in {} (§), still beaten beyond the noise in {} (‡)",
             pct(d.median_gap),
             pct(d.median_gap_closed),
             pct(d.min_gap_closed),
@@ -743,6 +759,7 @@ pub fn table(results: &[SeedResult], params: &BenchParams) -> String {
             d.median_held_out_improvement,
             pct(d.median_held_out_gap_closed),
             d.limits_searched_on,
+            d.limits_from_candidates,
             d.limits_beaten,
         );
     }
@@ -1003,6 +1020,7 @@ mod tests {
             limit_rounds: Vec::new(),
             bench_limit: both(-5.0),
             limit_beaten: PerDof::default(),
+            limit_candidate: PerDof::default(),
             check_noise: PerDof::both(f64::NAN),
             gap_closed: both(gap_closed(sim, after, -5.0)),
             trials_to_half: PerDof::default(),

@@ -31,8 +31,10 @@
 //! that DOF's search goes on from it (a new round: the beaters in its first generation, a fresh
 //! search set twice the size, which tells policies apart that the last could not). The DOF's limit
 //! is then the round's limit least beaten on the evaluation set (a larger search set need not
-//! evaluate higher there); still beaten, it says so ([`DofLimit::beaten`]): the report shows by what
-//! and by how much. The noise the check allows is [`check_noise`]'s: how much a difference between
+//! evaluate higher there). Still beaten after the last round, the candidate above it is itself a
+//! linear policy evaluated on that set: its own gains are the limit ([`DofLimit::candidate`]) where
+//! that is less beaten. Still beaten then, it says so ([`DofLimit::beaten`]): the report shows by
+//! what and by how much. The noise the check allows is [`check_noise`]'s: how much a difference between
 //! two policies of different gains moves over held-out sets.
 
 use crate::evaluation::{Evaluation, evaluate, policy_checkpoint, spread};
@@ -453,6 +455,10 @@ pub struct DofLimit {
     pub rounds: Vec<Round>,
     /// A candidate still above it in the DOF beyond the noise.
     pub beaten: Option<Beaten>,
+    /// Where no round found the return of the candidate that beat them: that candidate, whose own
+    /// gains are the limit.
+    #[serde(default)]
+    pub candidate: Option<String>,
 }
 
 /// The twin's limit: each DOF's.
@@ -609,12 +615,50 @@ pub fn find_in(
     // limit is the round least beaten there.
     let (rounds, mut evaluations): (Vec<Round>, Vec<Evaluation>) = done.into_iter().unzip();
     let best = least_beaten(dof, &rounds);
-    Ok(DofLimit {
+    let mut limit = DofLimit {
         gains: rounds[best].found.gains,
         evaluation: evaluations.swap_remove(best),
         beaten: rounds[best].beaten.clone(),
         rounds,
-    })
+        candidate: None,
+    };
+    // Still beaten: every round's search, ranked on its own set, settled elsewhere than the
+    // candidate above it on this one. That candidate is a linear policy evaluated on this set, so
+    // its own gains are the best return known here: they are the limit, if less beaten.
+    let beater = (limit.beaten.as_ref())
+        .and_then(|b| candidates.iter().find(|c| c.name == b.by))
+        .cloned();
+    if let Some(c) = beater {
+        let policy = policy_checkpoint(scenario, learning, c.gains);
+        let evaluation = evaluate(
+            scenario,
+            twin,
+            params.eyes,
+            &policy,
+            check.seed,
+            check.trials,
+        )?;
+        let j = *evaluation.mean().get(dof);
+        let beaten = beaten_in(dof, j, evaluation.lost, candidates, *check.noise.get(dof));
+        let before = *limit.evaluation.mean().get(dof);
+        if shortfall(j, beaten.as_ref()) < shortfall(before, limit.beaten.as_ref()) {
+            tracing::info!(
+                %dof,
+                candidate = %c.name,
+                evaluated = j,
+                searched = before,
+                "twin limit: no round found the candidate's return; its own gains are the limit"
+            );
+            limit = DofLimit {
+                gains: c.gains,
+                evaluation,
+                beaten,
+                candidate: Some(c.name),
+                ..limit
+            };
+        }
+    }
+    Ok(limit)
 }
 
 /// The round whose limit is least beaten in `dof` on the evaluation set (the first of equals).

@@ -688,3 +688,104 @@ fn shards_merged_give_the_unsplit_table_and_threads_change_nothing() {
     assert!(merge(&shards[..1]).is_err());
     assert!(merge(&[shards[0].clone(), shards[0].clone()]).is_err());
 }
+
+/// A candidate no search round finds is its own limit: each round's search ranks on its own set,
+/// and where that settles elsewhere than the candidate best on the evaluation set, the limit would
+/// be below it there. The case is made on purpose: gains around the LQR's, a search set of one
+/// trial, a search that stops after its first generation (so it ends on the best of its start and
+/// the candidates on the search set), and a search seed for which that is not the evaluation set's
+/// best. The limit must then be that candidate's gains, and beaten by none.
+#[test]
+fn a_candidate_no_search_finds_is_its_own_limit() {
+    use trainer::twin_limit::{Candidate, Check, find_in};
+    let s = setup();
+    let mut harsh = twin("twin-harsh.toml");
+    harsh.trials.duration_s = 20.0;
+    let lqr = experiment::lqr_gains(&s).unwrap();
+    let e = s.learning.evaluation.trials;
+    let (dof, check_seed) = (Dof::Yaw, 7);
+    let scaled = |k: f64| PerDof {
+        sway: lqr.sway,
+        yaw: lqr.yaw.map(|g| k * g),
+    };
+    let j = |gains, seed, trials| {
+        let mut t = harsh.clone();
+        t.trials.cycle = trials;
+        evaluate(
+            &s.scenario,
+            &t,
+            Eyes::Ideal,
+            &policy_checkpoint(&s.scenario, &s.learning, gains),
+            seed,
+            trials,
+        )
+        .unwrap()
+    };
+    let candidates: Vec<Candidate> = [0.5, 0.7, 1.0, 1.4, 2.0]
+        .iter()
+        .map(|&k| {
+            let ev = j(scaled(k), check_seed, e);
+            Candidate {
+                name: format!("yaw x {k}"),
+                gains: scaled(k),
+                evaluated: ev.mean(),
+                lost: ev.lost,
+            }
+        })
+        .collect();
+    let best_by = |scores: &[f64]| {
+        (0..scores.len())
+            .max_by(|&a, &b| scores[a].total_cmp(&scores[b]))
+            .unwrap()
+    };
+    let on_check: Vec<f64> = candidates.iter().map(|c| *c.evaluated.get(dof)).collect();
+    let best = best_by(&on_check);
+    // A search seed whose one-trial set ranks another candidate first.
+    let search_seed = (1..=60)
+        .find(|&seed| {
+            let on_search: Vec<f64> = candidates
+                .iter()
+                .map(|c| *j(c.gains, seed, 1).mean().get(dof))
+                .collect();
+            best_by(&on_search) != best
+        })
+        .expect("some one-trial search set ranks another candidate first");
+    let params = SearchParams {
+        eyes: Eyes::Ideal,
+        population: 4,
+        generations: 1,
+        trials: 1,
+        seed: search_seed,
+        tolerance: 1e9,
+    };
+    let check = Check {
+        seed: check_seed,
+        trials: e,
+        noise: PerDof::both(0.0),
+    };
+    let limit = find_in(
+        &s.scenario,
+        &s.learning,
+        &harsh,
+        dof,
+        candidates[0].gains,
+        &candidates,
+        &params,
+        &check,
+        1,
+        &Progress::hidden(),
+    )
+    .unwrap();
+    let round = &limit.rounds[0];
+    assert!(
+        round.beaten.is_some(),
+        "the search ended on the evaluation set's best: nothing to show ({round:?})"
+    );
+    assert_eq!(
+        limit.candidate.as_deref(),
+        Some(candidates[best].name.as_str())
+    );
+    assert_eq!(limit.gains, candidates[best].gains);
+    assert!(limit.beaten.is_none(), "{:?}", limit.beaten);
+    assert!(*limit.evaluation.mean().get(dof) >= on_check[best]);
+}
