@@ -389,7 +389,7 @@ impl Default for TrustRegionParams {
     fn default() -> Self {
         TrustRegionParams {
             enabled: true,
-            max_action_change: 0.05,
+            max_action_change: 0.5,
         }
     }
 }
