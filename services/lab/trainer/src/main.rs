@@ -1128,18 +1128,24 @@ fn twin_limit(
         let best = scored
             .iter()
             .max_by(|a, b| a.evaluated.get(dof).total_cmp(b.evaluated.get(dof)));
-        match (&found.get(dof).beaten, best) {
+        let limit = found.get(dof);
+        // The candidate whose own gains are the limit, where no round found its return.
+        let taken = limit
+            .candidate
+            .as_ref()
+            .map(|c| format!("; the limit is the gains of {c}, no round having found its return"))
+            .unwrap_or_default();
+        match (&limit.beaten, best) {
             (Some(b), _) => cli::outln!(
-                "{dof:>4}: check: BEATEN by {} by {:.4} (noise {:.4}) after {} rounds",
+                "{dof:>4}: check: BEATEN by {} by {:.4} (noise {:.4}) after {} rounds{taken}",
                 b.by,
                 b.margin,
                 b.noise,
-                found.get(dof).rounds.len()
+                limit.rounds.len()
             )?,
-            (None, _) if found.get(dof).candidate.is_some() => cli::outln!(
-                "{dof:>4}: check: no round found the return of {}; its own gains are the limit",
-                found.get(dof).candidate.as_deref().unwrap_or_default()
-            )?,
+            (None, _) if limit.candidate.is_some() => {
+                cli::outln!("{dof:>4}: check: above every candidate beyond the noise{taken}")?
+            }
             (None, Some(c)) => cli::outln!(
                 "{dof:>4}: check: above every candidate beyond the noise (best: {} at {:.4}, noise {:.4})",
                 c.name,

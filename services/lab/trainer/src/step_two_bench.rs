@@ -120,8 +120,9 @@ pub struct SeedResult {
     /// Each DOF's limit: its return under its own pair.
     pub limit: PerDof<f64>,
     /// The row's limit, each DOF's pair: the bench's, or where a policy of the seed beat it in the
-    /// DOF, the one its search found going on from there if less beaten than the bench's
-    /// (`limit_rounds`: the searches' rounds, each naming its DOF; none when the bench's held).
+    /// DOF, the one its search found going on from there if less beaten than the bench's, or that
+    /// policy's own gains (`limit_candidate`) where no round found its return (`limit_rounds`: the
+    /// searches' rounds, each naming its DOF; none when the bench's held).
     pub limit_gains: LimitGains,
     pub limit_rounds: Vec<Round>,
     /// The bench's limit evaluated on the seed's set (the row's `limit` where its search did not go
@@ -755,7 +756,7 @@ pub fn table(results: &[SeedResult], params: &BenchParams) -> String {
             t,
             "{dof:>4}: gap (J_limit - J_sim)/|J_sim| median {}; gap closed median {}, worst {}; trials to half the gap median {}; \
              worse than the simulation policy on its set: {} seeds; on the held-out sets beyond twice the standard error of the seed's mean (its noise, median {:.4}, over the root of the sets): {}; held-out improvement median {:+.4}, \
-             held-out gap closed median {}; the limit's search went on in {} seeds (†), the limit a policy of the seed's in {} (§), still beaten beyond the noise in {} (‡)",
+             held-out gap closed median {}; the limit's search went on in {} seeds (†, § or ‡), of which the limit is a policy of the seed's in {} (§) and still beaten beyond the noise in {} (‡)",
             pct(d.median_gap),
             pct(d.median_gap_closed),
             pct(d.min_gap_closed),
@@ -1056,7 +1057,7 @@ mod tests {
             seed(2, -8.0, -7.0, [0.9, 1.0, 1.1, 1.0]),
             // Kept its simulation policy; the others scatter around zero (mean -0.05, spread 0.35).
             seed(3, -8.0, -8.0, [0.3, -0.4, 0.2, -0.3]),
-            // Worse on every set, by a varying amount: mean -5.6, spread 4.3, standard error 2.2.
+            // Worse on every set, by a varying amount: mean -5.65, spread 4.3, standard error 2.2.
             seed(4, -31.0, -11.0, [-8.4, -9.9, -0.4, -3.9]),
         ];
         let s = summary(&results);

@@ -31,10 +31,11 @@
 //! that DOF's search goes on from it (a new round: the beaters in its first generation, a fresh
 //! search set twice the size, which tells policies apart that the last could not). The DOF's limit
 //! is then the round's limit least beaten on the evaluation set (a larger search set need not
-//! evaluate higher there). Still beaten after the last round, the candidate above it is itself a
-//! linear policy evaluated on that set: its own gains are the limit ([`DofLimit::candidate`]) where
-//! that is less beaten. Still beaten then, it says so ([`DofLimit::beaten`]): the report shows by
-//! what and by how much. The noise the check allows is [`check_noise`]'s: how much a difference between
+//! evaluate higher there). Still beaten, the candidate above that round's limit is itself a linear
+//! policy evaluated on that set: its own gains are the limit ([`DofLimit::candidate`]) where that is
+//! less beaten (a search can end on a pair that keeps the cable on its own set and loses it on the
+//! evaluation set). Still beaten then, it says so ([`DofLimit::beaten`]): the report shows by what
+//! and by how much. The noise the check allows is [`check_noise`]'s: how much a difference between
 //! two policies of different gains moves over held-out sets.
 
 use crate::evaluation::{Evaluation, evaluate, policy_checkpoint, spread};
@@ -622,9 +623,9 @@ pub fn find_in(
         rounds,
         candidate: None,
     };
-    // Still beaten: every round's search, ranked on its own set, settled elsewhere than the
-    // candidate above it on this one. That candidate is a linear policy evaluated on this set, so
-    // its own gains are the best return known here: they are the limit, if less beaten.
+    // Still beaten: no round's search, ranked on its own set, ended above that candidate on this
+    // one. The candidate is a linear policy evaluated on this set, so its own gains are the best
+    // return known here: they are the limit, if less beaten.
     let beater = (limit.beaten.as_ref())
         .and_then(|b| candidates.iter().find(|c| c.name == b.by))
         .cloned();
