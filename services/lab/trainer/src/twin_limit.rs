@@ -548,6 +548,22 @@ pub fn find_in(
     rounds: usize,
     progress: &Progress,
 ) -> Result<DofLimit, FromCheckpointError> {
+    // A pair's evaluation on the evaluation set, and the candidate above it there in the DOF.
+    let checked =
+        |gains: PerDof<[f64; 2]>| -> Result<(Evaluation, Option<Beaten>), FromCheckpointError> {
+            let policy = policy_checkpoint(scenario, learning, gains);
+            let evaluation = evaluate(
+                scenario,
+                twin,
+                params.eyes,
+                &policy,
+                check.seed,
+                check.trials,
+            )?;
+            let j = *evaluation.mean().get(dof);
+            let beaten = beaten_in(dof, j, evaluation.lost, candidates, *check.noise.get(dof));
+            Ok((evaluation, beaten))
+        };
     let mut start = start;
     let mut given: Vec<PerDof<[f64; 2]>> = candidates.iter().map(|c| c.gains).collect();
     let mut done = Vec::new();
@@ -564,22 +580,7 @@ pub fn find_in(
         let found = search(
             scenario, learning, twin, dof, start, &given, &round, progress,
         )?;
-        let policy = policy_checkpoint(scenario, learning, found.gains);
-        let evaluation = evaluate(
-            scenario,
-            twin,
-            params.eyes,
-            &policy,
-            check.seed,
-            check.trials,
-        )?;
-        let beaten = beaten_in(
-            dof,
-            *evaluation.mean().get(dof),
-            evaluation.lost,
-            candidates,
-            *check.noise.get(dof),
-        );
+        let (evaluation, beaten) = checked(found.gains)?;
         let gains = found.gains;
         if let Some(b) = &beaten {
             tracing::warn!(
@@ -630,17 +631,8 @@ pub fn find_in(
         .and_then(|b| candidates.iter().find(|c| c.name == b.by))
         .cloned();
     if let Some(c) = beater {
-        let policy = policy_checkpoint(scenario, learning, c.gains);
-        let evaluation = evaluate(
-            scenario,
-            twin,
-            params.eyes,
-            &policy,
-            check.seed,
-            check.trials,
-        )?;
+        let (evaluation, beaten) = checked(c.gains)?;
         let j = *evaluation.mean().get(dof);
-        let beaten = beaten_in(dof, j, evaluation.lost, candidates, *check.noise.get(dof));
         let before = *limit.evaluation.mean().get(dof);
         if shortfall(j, beaten.as_ref()) < shortfall(before, limit.beaten.as_ref()) {
             tracing::info!(
