@@ -371,6 +371,9 @@ impl Behaviour {
             self.fall_back(stamp.episode, "the cable was lost");
         }
         let TrialKind::Evaluation { slot } = self.kind else {
+            if learning_step_two && !episode.failed && !self.left_envelope {
+                self.adapt_trust_region(stamp.episode, true);
+            }
             return learning_stats(stamp, episode, &self.agent);
         };
         let s = self.step_two.as_ref().expect("evaluations are step two's");
@@ -432,6 +435,20 @@ impl Behaviour {
         stats.rolled_back = rolled_back as u8;
         stats.evaluated = evaluated;
         stats
+    }
+
+    /// Step two: the trust region's bound after trial `trial`: doubled when it was a learning trial
+    /// that kept the cable within the envelope (`kept`), halved when the cable was lost or the
+    /// envelope left. An evaluation's verdict leaves it: with images most pairs not taken are within
+    /// the evaluation's noise of the best, and halving on them kept the bound too small for yaw to
+    /// follow sway (the harsh-cross twin's yaw closed 31% of its gap instead of 58%).
+    fn adapt_trust_region(&mut self, trial: u32, kept: bool) {
+        let before = self.agent.safety().action_change_bound;
+        self.agent.adapt_trust_region(kept);
+        let after = self.agent.safety().action_change_bound;
+        if after != before {
+            tracing::debug!(dof = %self.dof(), trial, kept, from = before, to = after, "the trust region's bound adapted");
+        }
     }
 
     /// Judges the pair evaluated in `e`; returns whether the best pair's policy was restored.
@@ -508,6 +525,7 @@ impl Behaviour {
     /// dropped; with none evaluated yet, or rollback off, the policy stays. Returns whether it was
     /// restored.
     fn fall_back(&mut self, trial: u32, cause: &'static str) -> bool {
+        self.adapt_trust_region(trial, false);
         let Some(s) = &self.step_two else {
             return false;
         };
@@ -696,6 +714,65 @@ mod tests {
         trial(&mut b, &mut seq, 2, 5, StepStatus::TimeLimit, calm);
         trial(&mut b, &mut seq, 3, 5, StepStatus::TimeLimit, calm);
         assert!(b.agent().is_learning());
+    }
+
+    /// The trust region's bound starts at its smallest and adapts to how learning trials fare: a
+    /// trial that kept the cable within the envelope doubles it, a lost cable halves it. Every
+    /// actor update of the first learning trial stays within the smallest bound.
+    #[test]
+    fn the_trust_regions_bound_grows_with_trials_that_keep_the_cable_and_shrinks_on_a_loss() {
+        let (scenario, mut learning) = params();
+        learning.evaluation = config::EvaluationParams {
+            trials: 1,
+            learning_trials: 3,
+        };
+        learning.gpomdp.alpha.sway = 1.0;
+        learning.safety.stability.enabled = false;
+        learning.safety.trust_region.min_action_change = 0.05;
+        learning.safety.trust_region.max_action_change = 0.5;
+        let agent = new_agent(Dof::Sway, Algorithm::Gpomdp, &scenario, &learning, 5);
+        let step_two = StepTwo::new(&learning, true, 5, 6);
+        let mut b = Behaviour::for_step_two(agent, step_two, &scenario).unwrap();
+        let region = b.agent().guard().trust_region.expect("a trust region");
+        let bound = |b: &Behaviour| region.in_force(b.agent().safety().action_change_bound);
+        assert_eq!(bound(&b), 0.05);
+        let calm = |t: u32| 0.1 * (0.4 * t as f64).sin();
+        let mut seq = 0;
+        trial(&mut b, &mut seq, 0, 20, StepStatus::TimeLimit, calm);
+        assert_eq!(bound(&b), 0.05, "an evaluation taken leaves it");
+        // The first learning trial, step by step: no update moves the mean action more than 0.05.
+        let mut largest = 0.0_f64;
+        for step in 0..=20 {
+            let status = if step == 20 {
+                StepStatus::TimeLimit
+            } else {
+                StepStatus::Running
+            };
+            let mut o = obs(seq, 1, step, status, true);
+            o.observation.x_g = calm(step);
+            seq += 1;
+            let before = b.agent().gain();
+            b.step(&o);
+            let after = b.agent().gain();
+            largest =
+                largest.max(region.action_change([after[0] - before[0], after[1] - before[1]]));
+        }
+        assert!(
+            b.agent().safety().bounded > 0,
+            "the learner asked for longer steps"
+        );
+        assert!(
+            largest <= 0.05 + 1e-12,
+            "a step moved the mean action by {largest}"
+        );
+        assert_eq!(bound(&b), 0.1);
+        trial(&mut b, &mut seq, 2, 20, StepStatus::TimeLimit, calm);
+        assert_eq!(bound(&b), 0.2);
+        trial(&mut b, &mut seq, 3, 20, StepStatus::Lost, calm);
+        assert_eq!(bound(&b), 0.1);
+        // The bound is the agent's: a checkpoint keeps it.
+        let resumed = learning::Agent::from_state(b.agent().checkpoint(), 7).unwrap();
+        assert_eq!(region.in_force(resumed.safety().action_change_bound), 0.1);
     }
 
     /// Step two learns with its own eligibility rate: a NAC agent of step one's `nac.lambda` takes

@@ -319,14 +319,20 @@ pub struct SafetyParams {
 impl Validate for SafetyParams {
     fn validate(&self, key: &str) -> Result<(), Invalid> {
         let k = join(key, "trust_region");
-        positive(&k, "max_action_change", self.trust_region.max_action_change)?;
-        in_range(
-            &k,
-            "max_action_change",
-            self.trust_region.max_action_change,
-            0.0,
-            100.0,
-        )?;
+        let tr = &self.trust_region;
+        positive(&k, "max_action_change", tr.max_action_change)?;
+        in_range(&k, "max_action_change", tr.max_action_change, 0.0, 100.0)?;
+        positive(&k, "min_action_change", tr.min_action_change)?;
+        if tr.min_action_change > tr.max_action_change {
+            return Err(Invalid::new(
+                join(&k, "min_action_change"),
+                tr.min_action_change,
+                format!(
+                    "must be at most max_action_change ({})",
+                    tr.max_action_change
+                ),
+            ));
+        }
         let k = join(key, "stability");
         in_range(&k, "gain_margin", self.stability.gain_margin, 1.0, 100.0)?;
         in_range(
@@ -351,15 +357,21 @@ impl Validate for SafetyParams {
 /// The longest extra delay the stability guard can assume, in control periods.
 pub const MAX_GUARD_DELAY: u32 = 10;
 
-/// A trust region on each actor update: the mean action may change by at most `max_action_change`
-/// anywhere in the observation box, `|dK_0| m_0 + |dK_1| m_1 <= max_action_change` (a longer step is
-/// shortened along its direction). With the policy's fixed sigma, that bounds the largest KL
-/// divergence between successive policies over the box by `max_action_change^2 / (2 sigma^2)`.
+/// A trust region on each actor update: the mean action may change by at most the bound in force
+/// anywhere in the observation box, `|dK_0| m_0 + |dK_1| m_1 <= bound` (a longer step is shortened
+/// along its direction). With the policy's fixed sigma, that bounds the largest KL divergence
+/// between successive policies over the box by `bound^2 / (2 sigma^2)`.
+///
+/// The bound adapts as a trust-region radius does: it starts at `min_action_change`, doubles after
+/// each learning trial that kept the cable within the safety envelope, and halves after each
+/// failure (the cable lost, the envelope left), never outside `[min_action_change,
+/// max_action_change]`. Equal, the bound is fixed.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrustRegionParams {
     pub enabled: bool,
     pub max_action_change: f64,
+    pub min_action_change: f64,
 }
 
 /// The stability guard: an actor update is refused when its gain leaves the set in which the
@@ -390,6 +402,7 @@ impl Default for TrustRegionParams {
         TrustRegionParams {
             enabled: true,
             max_action_change: 0.5,
+            min_action_change: 0.5,
         }
     }
 }

@@ -76,6 +76,19 @@ fn an_out_of_range_value_is_refused_with_file_key_and_value() {
     let err =
         config::parse::<LearningParams>("[nac]\ngamma = 1.5\n", Path::new("l.toml")).unwrap_err();
     assert!(err.to_string().contains("nac.gamma"), "{err}");
+
+    // The trust region's smallest bound above its largest.
+    let err = config::parse::<LearningParams>(
+        "[safety.trust_region]\nmax_action_change = 0.1\nmin_action_change = 0.2\n",
+        Path::new("l.toml"),
+    )
+    .unwrap_err();
+    let ConfigError::Invalid { invalid, .. } = &err else {
+        panic!("{err}")
+    };
+    assert_eq!(invalid.key, "safety.trust_region.min_action_change");
+    assert_eq!(invalid.value, "0.2");
+    assert!(err.to_string().contains("max_action_change (0.1)"), "{err}");
 }
 
 #[test]

@@ -320,7 +320,8 @@ impl Agent {
     /// Puts the learner's update from `before` to the policy's gain now before the guard; returns
     /// whether the policy changed.
     fn review(&mut self, before: [f64; 2]) -> bool {
-        match self.guard.review(before, self.gain()) {
+        let bound = self.safety.action_change_bound;
+        match self.guard.review(before, self.gain(), bound) {
             Review::Accepted { gain, bounded } => {
                 self.policy.gain = gain.into();
                 self.safety.bounded += bounded as u64;
@@ -428,6 +429,15 @@ impl Agent {
     /// step two); `UpdateGuard::default()` lets every update through.
     pub fn set_guard(&mut self, guard: UpdateGuard) {
         self.guard = guard;
+    }
+
+    /// Step two: adapts the trust region's bound (if there is a trust region) to how the last step
+    /// fared: a learning trial that kept the cable within the envelope (`kept`), or a failure.
+    pub fn adapt_trust_region(&mut self, kept: bool) {
+        if let Some(tr) = &self.guard.trust_region {
+            let bound = &mut self.safety.action_change_bound;
+            *bound = tr.adapted(*bound, kept);
+        }
     }
 
     /// The guard every actor update passes.

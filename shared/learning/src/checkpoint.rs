@@ -30,7 +30,10 @@
 //! - versions 4 and 5: the pair's costs (`BestPolicy::cost`, `SafetyState::evaluation_cost`,
 //!   `scale`) are state costs only, without the action term; read like version 3's, with the
 //!   best's pair unknown and the weights taken from the next evaluation.
-//! - version 6: the current format.
+//! - versions 5 and 6: a trust region of one fixed bound (no `TrustRegionParams::min_action_change`,
+//!   no adapted bound `SafetyState::action_change_bound`); read with the smallest bound equal to
+//!   the largest, so the bound stays as it was.
+//! - version 7: the current format.
 //!
 //! Saving writes a temporary file in the target's directory, syncs it, renames it over the target and
 //! syncs the directory: a crash leaves either the old checkpoint or the new one, never a mix.
@@ -46,7 +49,7 @@ use std::path::{Path, PathBuf};
 /// The first bytes of every checkpoint file.
 pub const MAGIC: [u8; 8] = *b"CTRKCKPT";
 /// The format this code writes, and the newest it reads.
-pub const FORMAT_VERSION: u32 = 6;
+pub const FORMAT_VERSION: u32 = 7;
 /// Magic, version, payload length, CRC.
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 4;
 
@@ -457,6 +460,11 @@ impl Checkpoint {
                 bincode::serde::decode_from_slice(&payload, bincode::config::standard())
                     .map_err(decode_err)?;
             (old.into(), used)
+        } else if version == 5 || version == 6 {
+            let (old, used): (v6::Checkpoint, usize) =
+                bincode::serde::decode_from_slice(&payload, bincode::config::standard())
+                    .map_err(decode_err)?;
+            (old.into(), used)
         } else {
             bincode::serde::decode_from_slice(&payload, bincode::config::standard())
                 .map_err(decode_err)?
@@ -723,6 +731,7 @@ mod v3 {
                 evaluation_lost: 0,
                 evaluation_cost: PerDof::default(),
                 scale: PerDof::default(),
+                action_change_bound: 0.0,
             }
         }
     }
@@ -731,7 +740,8 @@ mod v3 {
 /// Format version 4: today's safety state, the learning parameters without step two's learner's
 /// (`LearningParams::step_two`), read with their defaults.
 mod v4 {
-    use config::{EvaluationParams, GpomdpParams, NacParams, PolicyParams, SafetyParams};
+    use super::v6::SafetyParams;
+    use config::{EvaluationParams, GpomdpParams, NacParams, PolicyParams};
     use serde::{Deserialize, Serialize};
 
     pub type Checkpoint = super::before_step_two::Checkpoint<crate::safety::SafetyState>;
@@ -754,8 +764,142 @@ mod v4 {
                 nac: p.nac,
                 gpomdp: p.gpomdp,
                 evaluation: p.evaluation,
-                safety: p.safety,
+                safety: p.safety.into(),
                 ..Default::default()
+            }
+        }
+    }
+}
+
+/// Formats 5 and 6: the trust region of one fixed bound (see the module docs), read with the
+/// smallest bound equal to the largest and no bound adapted yet.
+mod v6 {
+    use super::{LearnerState, PolicyState};
+    use crate::safety::BestPolicy;
+    use config::{
+        Dof, EvaluationParams, GpomdpParams, NacParams, PerDof, PolicyParams, QuadraticCost,
+        RollbackParams, StabilityParams, StepTwoParams,
+    };
+    use serde::{Deserialize, Serialize};
+
+    #[derive(Serialize, Deserialize)]
+    pub struct Checkpoint {
+        pub sway: Option<AgentState>,
+        pub yaw: Option<AgentState>,
+    }
+
+    #[derive(Serialize, Deserialize)]
+    pub struct AgentState {
+        pub dof: Dof,
+        pub params: LearningParams,
+        pub cost: QuadraticCost,
+        pub state_max: [f64; 2],
+        pub policy: PolicyState,
+        pub learner: LearnerState,
+        pub steps: u64,
+        pub episodes: u64,
+        pub safety: SafetyState,
+    }
+
+    #[derive(Clone, Serialize, Deserialize)]
+    pub struct LearningParams {
+        pub policy: PolicyParams,
+        pub nac: NacParams,
+        pub gpomdp: GpomdpParams,
+        pub evaluation: EvaluationParams,
+        pub safety: SafetyParams,
+        pub step_two: StepTwoParams,
+    }
+
+    #[derive(Clone, Serialize, Deserialize)]
+    pub struct SafetyParams {
+        pub trust_region: TrustRegionParams,
+        pub stability: StabilityParams,
+        pub rollback: RollbackParams,
+    }
+
+    #[derive(Clone, Serialize, Deserialize)]
+    pub struct TrustRegionParams {
+        pub enabled: bool,
+        pub max_action_change: f64,
+    }
+
+    #[derive(Clone, Copy, Serialize, Deserialize)]
+    pub struct SafetyState {
+        pub bounded: u64,
+        pub refused: u64,
+        pub rollbacks: u64,
+        pub evaluations: u64,
+        pub best: Option<BestPolicy>,
+        pub evaluation_sum: f64,
+        pub evaluation_trials: u32,
+        pub evaluation_lost: u32,
+        pub evaluation_cost: PerDof<f64>,
+        pub scale: PerDof<f64>,
+    }
+
+    impl From<SafetyParams> for config::SafetyParams {
+        fn from(p: SafetyParams) -> Self {
+            let tr = p.trust_region;
+            config::SafetyParams {
+                trust_region: config::TrustRegionParams {
+                    enabled: tr.enabled,
+                    max_action_change: tr.max_action_change,
+                    min_action_change: tr.max_action_change,
+                },
+                stability: p.stability,
+                rollback: p.rollback,
+            }
+        }
+    }
+
+    impl From<SafetyState> for crate::safety::SafetyState {
+        fn from(f: SafetyState) -> Self {
+            crate::safety::SafetyState {
+                bounded: f.bounded,
+                refused: f.refused,
+                rollbacks: f.rollbacks,
+                evaluations: f.evaluations,
+                best: f.best,
+                evaluation_sum: f.evaluation_sum,
+                evaluation_trials: f.evaluation_trials,
+                evaluation_lost: f.evaluation_lost,
+                evaluation_cost: f.evaluation_cost,
+                scale: f.scale,
+                action_change_bound: 0.0,
+            }
+        }
+    }
+
+    impl From<AgentState> for super::AgentState {
+        fn from(s: AgentState) -> Self {
+            let p = s.params;
+            super::AgentState {
+                dof: s.dof,
+                params: config::LearningParams {
+                    policy: p.policy,
+                    nac: p.nac,
+                    gpomdp: p.gpomdp,
+                    evaluation: p.evaluation,
+                    safety: p.safety.into(),
+                    step_two: p.step_two,
+                },
+                cost: s.cost,
+                state_max: s.state_max,
+                policy: s.policy,
+                learner: s.learner,
+                steps: s.steps,
+                episodes: s.episodes,
+                safety: s.safety.into(),
+            }
+        }
+    }
+
+    impl From<Checkpoint> for super::Checkpoint {
+        fn from(c: Checkpoint) -> Self {
+            super::Checkpoint {
+                sway: c.sway.map(Into::into),
+                yaw: c.yaw.map(Into::into),
             }
         }
     }
@@ -1142,8 +1286,97 @@ mod tests {
             nac: p.nac.clone(),
             gpomdp: p.gpomdp.clone(),
             evaluation: p.evaluation.clone(),
-            safety: p.safety.clone(),
+            safety: v6_safety_params(&p.safety),
         }
+    }
+
+    fn v6_safety_params(p: &config::SafetyParams) -> v6::SafetyParams {
+        v6::SafetyParams {
+            trust_region: v6::TrustRegionParams {
+                enabled: p.trust_region.enabled,
+                max_action_change: p.trust_region.max_action_change,
+            },
+            stability: p.stability.clone(),
+            rollback: p.rollback.clone(),
+        }
+    }
+
+    /// `c` as a checkpoint of formats 5 and 6 (the trust region's bound fixed).
+    fn v6_of(c: &Checkpoint) -> v6::Checkpoint {
+        let agent = |s: &AgentState| {
+            let (p, f) = (&s.params, s.safety);
+            v6::AgentState {
+                dof: s.dof,
+                params: v6::LearningParams {
+                    policy: p.policy.clone(),
+                    nac: p.nac.clone(),
+                    gpomdp: p.gpomdp.clone(),
+                    evaluation: p.evaluation.clone(),
+                    safety: v6_safety_params(&p.safety),
+                    step_two: p.step_two.clone(),
+                },
+                cost: s.cost,
+                state_max: s.state_max,
+                policy: s.policy,
+                learner: s.learner.clone(),
+                steps: s.steps,
+                episodes: s.episodes,
+                safety: v6::SafetyState {
+                    bounded: f.bounded,
+                    refused: f.refused,
+                    rollbacks: f.rollbacks,
+                    evaluations: f.evaluations,
+                    best: f.best,
+                    evaluation_sum: f.evaluation_sum,
+                    evaluation_trials: f.evaluation_trials,
+                    evaluation_lost: f.evaluation_lost,
+                    evaluation_cost: f.evaluation_cost,
+                    scale: f.scale,
+                },
+            }
+        };
+        v6::Checkpoint {
+            sway: c.sway.as_ref().map(agent),
+            yaw: c.yaw.as_ref().map(agent),
+        }
+    }
+
+    /// `c` as it reads from a file of formats 4 to 6: the trust region's smallest bound its
+    /// largest, no bound adapted.
+    fn with_fixed_trust_region(mut c: Checkpoint) -> Checkpoint {
+        for s in [c.sway.as_mut(), c.yaw.as_mut()].into_iter().flatten() {
+            let tr = &mut s.params.safety.trust_region;
+            tr.min_action_change = tr.max_action_change;
+            s.safety.action_change_bound = 0.0;
+        }
+        c
+    }
+
+    /// A file of format 6 (a trust region of one fixed bound) loads with that bound fixed and
+    /// everything else as saved; the same agents in the current format keep the adapted bound.
+    #[test]
+    fn a_format_6_checkpoint_loads_with_its_trust_regions_bound_fixed() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.ckpt");
+        let mut saved = both();
+        for s in [saved.sway.as_mut(), saved.yaw.as_mut()]
+            .into_iter()
+            .flatten()
+        {
+            s.params.safety.trust_region.max_action_change = 0.3;
+            s.params.safety.trust_region.min_action_change = 0.05;
+            s.safety.action_change_bound = 0.2;
+            s.safety.rollbacks = 2;
+        }
+        let c = bincode::config::standard();
+        let six = bincode::serde::encode_to_vec(v6_of(&saved), c).unwrap();
+        fs::write(&path, file_of(6, &six)).unwrap();
+        let loaded = Checkpoint::load(&path).unwrap();
+        assert_eq!(loaded, with_fixed_trust_region(saved.clone()));
+        let tr = &loaded.sway.as_ref().unwrap().params.safety.trust_region;
+        assert_eq!((tr.min_action_change, tr.max_action_change), (0.3, 0.3));
+        saved.save(&path).unwrap();
+        assert_eq!(Checkpoint::load(&path).unwrap(), saved);
     }
 
     /// A file of format 4 (before step two's learner had parameters of its own) still loads, with
@@ -1180,7 +1413,7 @@ mod tests {
             s.params.step_two = config::StepTwoParams::default();
         }
         let loaded = Checkpoint::load(&path).unwrap();
-        assert_eq!(loaded, expected);
+        assert_eq!(loaded, with_fixed_trust_region(expected));
         assert_eq!(loaded.sway.unwrap().params.nac.lambda, 0.7);
     }
 
@@ -1254,7 +1487,10 @@ mod tests {
             file_of(3, &bincode::serde::encode_to_vec(&three, c).unwrap()),
         )
         .unwrap();
-        assert_eq!(Checkpoint::load(&path).unwrap(), now);
+        assert_eq!(
+            Checkpoint::load(&path).unwrap(),
+            with_fixed_trust_region(now.clone())
+        );
         let two = v2::Checkpoint {
             sway: now.sway.as_ref().map(v2_of),
             yaw: now.yaw.as_ref().map(v2_of),
@@ -1264,7 +1500,10 @@ mod tests {
             file_of(2, &bincode::serde::encode_to_vec(&two, c).unwrap()),
         )
         .unwrap();
-        assert_eq!(Checkpoint::load(&path).unwrap(), now);
+        assert_eq!(
+            Checkpoint::load(&path).unwrap(),
+            with_fixed_trust_region(now.clone())
+        );
     }
 
     /// A file of format 5 (the pair's costs without the action term) loads with everything as
@@ -1305,7 +1544,7 @@ mod tests {
             };
         }
         let c = bincode::config::standard();
-        let payload = bincode::serde::encode_to_vec(&saved, c).unwrap();
+        let payload = bincode::serde::encode_to_vec(v6_of(&saved), c).unwrap();
         fs::write(&path, file_of(5, &payload)).unwrap();
         let loaded = Checkpoint::load(&path).unwrap();
         let safety = loaded.sway.as_ref().unwrap().safety;
@@ -1317,16 +1556,19 @@ mod tests {
         assert_eq!(safety.evaluation_cost, config::PerDof::default());
         assert_eq!((safety.evaluation_sum, safety.evaluation_trials), (0.0, 0));
         assert_eq!(loaded.yaw.unwrap().safety, safety);
-        // The same payload as the current format keeps them.
-        fs::write(&path, file_of(FORMAT_VERSION, &payload)).unwrap();
-        assert_eq!(Checkpoint::load(&path).unwrap(), saved);
+        // The same payload as format 6 keeps them.
+        fs::write(&path, file_of(6, &payload)).unwrap();
+        assert_eq!(
+            Checkpoint::load(&path).unwrap(),
+            with_fixed_trust_region(saved)
+        );
     }
 
     #[test]
     fn the_header_is_the_documented_layout() {
         let (_dir, _path, bytes) = saved_bytes();
         assert_eq!(&bytes[..8], b"CTRKCKPT");
-        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 6);
+        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 7);
         let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
         assert_eq!(len as usize, bytes.len() - HEADER_LEN);
         let crc = u32::from_le_bytes(bytes[20..24].try_into().unwrap());

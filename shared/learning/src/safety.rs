@@ -1,10 +1,18 @@
 //! Safe policy improvement on the vehicle (step two): what may change the policy, and when a change
 //! is taken back. Three independent parts, each switched in `learning.toml` (`[safety]`):
 //!
-//! - [`TrustRegion`]: each actor update may change the mean action by at most `max_action_change`
+//! - [`TrustRegion`]: each actor update may change the mean action by at most the bound in force
 //!   anywhere in the observation box; a longer natural-gradient step is shortened along its
 //!   direction (a step bound in the spirit of TRPO's KL constraint, here on the largest KL over the
-//!   box, which for a fixed sigma is `max_action_change^2 / (2 sigma^2)`).
+//!   box, which for a fixed sigma is `bound^2 / (2 sigma^2)`). The bound is a trust-region radius
+//!   adapted to how the steps fare ([`TrustRegion::adapted`]): it starts at `min_action_change`,
+//!   doubles after each learning trial that kept the cable within the envelope, and halves when
+//!   the cable is lost or the envelope left, within `[min_action_change, max_action_change]`
+//!   (the behaviours apply it: `behaviour::core`). The first steps on the vehicle
+//!   are the ones least known to be safe: the simulation policy can lose the cable on the vehicle,
+//!   and then nothing has been evaluated to fall back to, so one long step there can lose the cable
+//!   for many trials; once steps keep it, longer ones let yaw follow what sway learns within the
+//!   session.
 //! - [`StableSet`]: a gain is admissible when the identified linear model of the DOF, discretised at
 //!   the sample time, closed with that gain times a gain margin and with extra periods of delay, has
 //!   a spectral radius of at most `max_radius` (a stability-constrained update: the learner may not
@@ -57,6 +65,7 @@ use serde::{Deserialize, Serialize};
 /// The trust region on each actor update (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TrustRegion {
+    min_action_change: f64,
     max_action_change: f64,
     state_max: [f64; 2],
 }
@@ -65,9 +74,28 @@ impl TrustRegion {
     /// A trust region of `params` over the observation box `|x_i| <= state_max[i]`.
     pub fn new(params: &TrustRegionParams, state_max: [f64; 2]) -> Self {
         TrustRegion {
+            min_action_change: params.min_action_change,
             max_action_change: params.max_action_change,
             state_max,
         }
+    }
+
+    /// The bound in force for the adapted bound `bound` a safety state keeps
+    /// ([`SafetyState::action_change_bound`]): the smallest before any (0), and within the
+    /// region's limits always.
+    pub fn in_force(&self, bound: f64) -> f64 {
+        if bound > 0.0 {
+            bound.clamp(self.min_action_change, self.max_action_change)
+        } else {
+            self.min_action_change
+        }
+    }
+
+    /// The bound after a learning trial that kept the cable within the envelope (`kept`: doubled)
+    /// or after a failure (halved), from the adapted bound `bound`; within the region's limits.
+    pub fn adapted(&self, bound: f64, kept: bool) -> f64 {
+        let factor = if kept { 2.0 } else { 0.5 };
+        (self.in_force(bound) * factor).clamp(self.min_action_change, self.max_action_change)
     }
 
     /// The largest change of the mean action over the box that a gain step `dk` makes.
@@ -75,14 +103,15 @@ impl TrustRegion {
         dk[0].abs() * self.state_max[0] + dk[1].abs() * self.state_max[1]
     }
 
-    /// `dk` shortened along its direction to the region's edge when it reaches beyond; `true` when
-    /// it was shortened.
-    pub fn bound(&self, dk: [f64; 2]) -> ([f64; 2], bool) {
+    /// `dk` shortened along its direction to the edge of the region of the adapted bound `bound`
+    /// when it reaches beyond; `true` when it was shortened.
+    pub fn bound(&self, dk: [f64; 2], bound: f64) -> ([f64; 2], bool) {
         let change = self.action_change(dk);
-        if change <= self.max_action_change || !change.is_finite() {
+        let bound = self.in_force(bound);
+        if change <= bound || !change.is_finite() {
             return (dk, false);
         }
-        let s = self.max_action_change / change;
+        let s = bound / change;
         ([dk[0] * s, dk[1] * s], true)
     }
 }
@@ -175,11 +204,13 @@ impl UpdateGuard {
         self.trust_region.is_some() || self.stable_set.is_some()
     }
 
-    /// Reviews the actor update from `before` to `proposed`.
-    pub fn review(&self, before: [f64; 2], proposed: [f64; 2]) -> Review {
+    /// Reviews the actor update from `before` to `proposed`, under the trust region's adapted
+    /// bound `bound` ([`SafetyState::action_change_bound`]).
+    pub fn review(&self, before: [f64; 2], proposed: [f64; 2], bound: f64) -> Review {
         let (gain, bounded) = match &self.trust_region {
             Some(tr) => {
-                let (dk, bounded) = tr.bound([proposed[0] - before[0], proposed[1] - before[1]]);
+                let dk = [proposed[0] - before[0], proposed[1] - before[1]];
+                let (dk, bounded) = tr.bound(dk, bound);
                 ([before[0] + dk[0], before[1] + dk[1]], bounded)
             }
             None => (proposed, false),
@@ -420,6 +451,9 @@ pub struct SafetyState {
     /// Each DOF's cost in the session's first evaluation judged: the weights of the pair's score
     /// (0 before it).
     pub scale: PerDof<f64>,
+    /// The trust region's adapted bound on the mean action's change ([`TrustRegion::adapted`]; 0
+    /// before any: the smallest).
+    pub action_change_bound: f64,
 }
 
 impl SafetyState {
@@ -428,7 +462,7 @@ impl SafetyState {
         self.evaluation_sum.is_finite()
             && self.evaluation_cost.sway.is_finite()
             && self.evaluation_cost.yaw.is_finite()
-            && [self.scale.sway, self.scale.yaw]
+            && [self.scale.sway, self.scale.yaw, self.action_change_bound]
                 .iter()
                 .all(|s| s.is_finite() && *s >= 0.0)
             && self
@@ -464,20 +498,50 @@ mod tests {
         }
     }
 
+    fn region(min_action_change: f64, max_action_change: f64) -> TrustRegion {
+        let params = TrustRegionParams {
+            enabled: true,
+            max_action_change,
+            min_action_change,
+        };
+        TrustRegion::new(&params, [0.5, 0.5])
+    }
+
     #[test]
     fn the_trust_region_shortens_long_steps_along_their_direction() {
-        let tr = TrustRegion::new(
-            &TrustRegionParams {
-                enabled: true,
-                max_action_change: 0.1,
-            },
-            [0.5, 0.5],
-        );
-        assert_eq!(tr.bound([0.1, -0.05]), ([0.1, -0.05], false));
-        let (dk, bounded) = tr.bound([1.0, -3.0]);
+        let tr = region(0.1, 0.1);
+        assert_eq!(tr.bound([0.1, -0.05], 0.1), ([0.1, -0.05], false));
+        let (dk, bounded) = tr.bound([1.0, -3.0], 0.1);
         assert!(bounded);
         assert!((tr.action_change(dk) - 0.1).abs() < 1e-12);
         assert!((dk[1] / dk[0] + 3.0).abs() < 1e-12, "same direction");
+    }
+
+    /// The bound starts at the smallest, doubles on each trial that kept the cable and halves on
+    /// each failure, never leaving the region's limits; a step is shortened to the bound in force.
+    #[test]
+    fn the_trust_regions_bound_grows_on_success_and_shrinks_on_failure() {
+        let tr = region(0.05, 0.5);
+        assert_eq!(tr.in_force(0.0), 0.05, "no bound adapted yet: the smallest");
+        let mut bound = 0.0;
+        let mut seen = Vec::new();
+        for kept in [
+            true, true, true, true, true, false, false, false, false, false,
+        ] {
+            bound = tr.adapted(bound, kept);
+            seen.push(bound);
+        }
+        assert_eq!(
+            seen,
+            [0.1, 0.2, 0.4, 0.5, 0.5, 0.25, 0.125, 0.0625, 0.05, 0.05]
+        );
+        // A step of action change 0.2 passes under the largest bound, is halved under 0.1.
+        let dk = [0.2, 0.2];
+        assert_eq!(tr.bound(dk, 0.5), (dk, false));
+        let (short, bounded) = tr.bound(dk, 0.1);
+        assert!(bounded && (tr.action_change(short) - 0.1).abs() < 1e-12);
+        // A bound kept from other limits is taken within these.
+        assert_eq!((tr.in_force(3.0), tr.in_force(0.01)), (0.5, 0.05));
     }
 
     /// Without delay and margin the radius is that of A + BK; the plant alone (K = 0) has the
@@ -514,20 +578,23 @@ mod tests {
         };
         let inside = [10.0, 3.0];
         assert!(matches!(
-            guard.review(inside, [10.5, 3.0]),
+            guard.review(inside, [10.5, 3.0], 0.0),
             Review::Accepted { bounded: false, .. }
         ));
         let out = [400.0, 3.0];
-        assert!(matches!(guard.review(inside, out), Review::Refused { .. }));
+        assert!(matches!(
+            guard.review(inside, out, 0.0),
+            Review::Refused { .. }
+        ));
         // Outside, a step towards the set is allowed, a step further out is not.
         let set = guard.stable_set.as_ref().unwrap();
         assert!(!set.contains(out) && set.radius([300.0, 3.0]) < set.radius(out));
         assert!(matches!(
-            guard.review(out, [300.0, 3.0]),
+            guard.review(out, [300.0, 3.0], 0.0),
             Review::Accepted { .. }
         ));
         assert!(matches!(
-            guard.review(out, [500.0, 3.0]),
+            guard.review(out, [500.0, 3.0], 0.0),
             Review::Refused { .. }
         ));
     }
