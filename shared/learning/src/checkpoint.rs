@@ -593,25 +593,25 @@ mod v1 {
     }
 }
 
-/// The payload of format versions 2 to 4 (see the module docs): today's agent state but for the
-/// safety layer's, `S`, which versions 2 and 3 have their own, and the learning parameters before
-/// step two's learner had its own ([`super::v4::LearningParams`]).
-mod before_step_two {
-    use super::v4::LearningParams;
+/// The payload of format versions 2 to 6 (see the module docs): today's agent state but for the
+/// safety layer's, `S`, which each of them has its own, and the learning parameters `P`: before
+/// step two's learner had its own ([`super::v4::LearningParams`], versions 2 to 4), or before the
+/// trust region could adapt ([`super::v6::LearningParams`], versions 5 and 6).
+mod older {
     use super::{LearnerState, PolicyState};
     use config::{Dof, QuadraticCost};
     use serde::{Deserialize, Serialize};
 
     #[derive(Serialize, Deserialize)]
-    pub struct Checkpoint<S> {
-        pub sway: Option<AgentState<S>>,
-        pub yaw: Option<AgentState<S>>,
+    pub struct Checkpoint<S, P = super::v4::LearningParams> {
+        pub sway: Option<AgentState<S, P>>,
+        pub yaw: Option<AgentState<S, P>>,
     }
 
     #[derive(Serialize, Deserialize)]
-    pub struct AgentState<S> {
+    pub struct AgentState<S, P = super::v4::LearningParams> {
         pub dof: Dof,
-        pub params: LearningParams,
+        pub params: P,
         pub cost: QuadraticCost,
         pub state_max: [f64; 2],
         pub policy: PolicyState,
@@ -621,8 +621,12 @@ mod before_step_two {
         pub safety: S,
     }
 
-    impl<S: Into<crate::safety::SafetyState>> From<AgentState<S>> for super::AgentState {
-        fn from(s: AgentState<S>) -> Self {
+    impl<S, P> From<AgentState<S, P>> for super::AgentState
+    where
+        S: Into<crate::safety::SafetyState>,
+        P: Into<config::LearningParams>,
+    {
+        fn from(s: AgentState<S, P>) -> Self {
             super::AgentState {
                 dof: s.dof,
                 params: s.params.into(),
@@ -637,8 +641,12 @@ mod before_step_two {
         }
     }
 
-    impl<S: Into<crate::safety::SafetyState>> From<Checkpoint<S>> for super::Checkpoint {
-        fn from(c: Checkpoint<S>) -> Self {
+    impl<S, P> From<Checkpoint<S, P>> for super::Checkpoint
+    where
+        S: Into<crate::safety::SafetyState>,
+        P: Into<config::LearningParams>,
+    {
+        fn from(c: Checkpoint<S, P>) -> Self {
             super::Checkpoint {
                 sway: c.sway.map(Into::into),
                 yaw: c.yaw.map(Into::into),
@@ -651,9 +659,9 @@ mod before_step_two {
 mod v2 {
     use serde::{Deserialize, Serialize};
 
-    pub type Checkpoint = super::before_step_two::Checkpoint<SafetyState>;
+    pub type Checkpoint = super::older::Checkpoint<SafetyState>;
     #[cfg(test)]
-    pub type AgentState = super::before_step_two::AgentState<SafetyState>;
+    pub type AgentState = super::older::AgentState<SafetyState>;
 
     #[derive(Clone, Copy, Serialize, Deserialize)]
     pub struct SafetyState {
@@ -688,9 +696,9 @@ mod v3 {
     use config::PerDof;
     use serde::{Deserialize, Serialize};
 
-    pub type Checkpoint = super::before_step_two::Checkpoint<SafetyState>;
+    pub type Checkpoint = super::older::Checkpoint<SafetyState>;
     #[cfg(test)]
-    pub type AgentState = super::before_step_two::AgentState<SafetyState>;
+    pub type AgentState = super::older::AgentState<SafetyState>;
 
     #[derive(Clone, Copy, Serialize, Deserialize)]
     pub struct SafetyState {
@@ -744,9 +752,9 @@ mod v4 {
     use config::{EvaluationParams, GpomdpParams, NacParams, PolicyParams};
     use serde::{Deserialize, Serialize};
 
-    pub type Checkpoint = super::before_step_two::Checkpoint<crate::safety::SafetyState>;
+    pub type Checkpoint = super::older::Checkpoint<crate::safety::SafetyState>;
     #[cfg(test)]
-    pub type AgentState = super::before_step_two::AgentState<crate::safety::SafetyState>;
+    pub type AgentState = super::older::AgentState<crate::safety::SafetyState>;
 
     #[derive(Clone, Serialize, Deserialize)]
     pub struct LearningParams {
@@ -774,32 +782,16 @@ mod v4 {
 /// Formats 5 and 6: the trust region of one fixed bound (see the module docs), read with the
 /// smallest bound equal to the largest and no bound adapted yet.
 mod v6 {
-    use super::{LearnerState, PolicyState};
     use crate::safety::BestPolicy;
     use config::{
-        Dof, EvaluationParams, GpomdpParams, NacParams, PerDof, PolicyParams, QuadraticCost,
-        RollbackParams, StabilityParams, StepTwoParams,
+        EvaluationParams, GpomdpParams, NacParams, PerDof, PolicyParams, RollbackParams,
+        StabilityParams, StepTwoParams,
     };
     use serde::{Deserialize, Serialize};
 
-    #[derive(Serialize, Deserialize)]
-    pub struct Checkpoint {
-        pub sway: Option<AgentState>,
-        pub yaw: Option<AgentState>,
-    }
-
-    #[derive(Serialize, Deserialize)]
-    pub struct AgentState {
-        pub dof: Dof,
-        pub params: LearningParams,
-        pub cost: QuadraticCost,
-        pub state_max: [f64; 2],
-        pub policy: PolicyState,
-        pub learner: LearnerState,
-        pub steps: u64,
-        pub episodes: u64,
-        pub safety: SafetyState,
-    }
+    pub type Checkpoint = super::older::Checkpoint<SafetyState, LearningParams>;
+    #[cfg(test)]
+    pub type AgentState = super::older::AgentState<SafetyState, LearningParams>;
 
     #[derive(Clone, Serialize, Deserialize)]
     pub struct LearningParams {
@@ -871,35 +863,15 @@ mod v6 {
         }
     }
 
-    impl From<AgentState> for super::AgentState {
-        fn from(s: AgentState) -> Self {
-            let p = s.params;
-            super::AgentState {
-                dof: s.dof,
-                params: config::LearningParams {
-                    policy: p.policy,
-                    nac: p.nac,
-                    gpomdp: p.gpomdp,
-                    evaluation: p.evaluation,
-                    safety: p.safety.into(),
-                    step_two: p.step_two,
-                },
-                cost: s.cost,
-                state_max: s.state_max,
-                policy: s.policy,
-                learner: s.learner,
-                steps: s.steps,
-                episodes: s.episodes,
-                safety: s.safety.into(),
-            }
-        }
-    }
-
-    impl From<Checkpoint> for super::Checkpoint {
-        fn from(c: Checkpoint) -> Self {
-            super::Checkpoint {
-                sway: c.sway.map(Into::into),
-                yaw: c.yaw.map(Into::into),
+    impl From<LearningParams> for config::LearningParams {
+        fn from(p: LearningParams) -> Self {
+            config::LearningParams {
+                policy: p.policy,
+                nac: p.nac,
+                gpomdp: p.gpomdp,
+                evaluation: p.evaluation,
+                safety: p.safety.into(),
+                step_two: p.step_two,
             }
         }
     }
@@ -1266,8 +1238,8 @@ mod tests {
 
     /// `s` as an older format's agent state: its learning parameters without step two's own, its
     /// safety layer's state `safety`.
-    fn legacy<S>(s: &AgentState, safety: S) -> before_step_two::AgentState<S> {
-        before_step_two::AgentState {
+    fn legacy<S>(s: &AgentState, safety: S) -> older::AgentState<S> {
+        older::AgentState {
             dof: s.dof,
             params: v4_params(&s.params),
             cost: s.cost,
