@@ -613,6 +613,11 @@ mod tests {
     /// Step two with one evaluation trial and one learning trial in turn, a learner whose every step
     /// moves the gain, and the default safety layer.
     fn step_two_sway() -> Behaviour {
+        step_two_sway_with(|_| {})
+    }
+
+    /// [`step_two_sway`] with its learning parameters changed by `edit`.
+    fn step_two_sway_with(edit: impl FnOnce(&mut LearningParams)) -> Behaviour {
         let (scenario, mut learning) = params();
         learning.evaluation = config::EvaluationParams {
             trials: 1,
@@ -620,22 +625,25 @@ mod tests {
         };
         learning.gpomdp.alpha.sway = 1.0;
         learning.safety.stability.enabled = false;
+        edit(&mut learning);
         let agent = new_agent(Dof::Sway, Algorithm::Gpomdp, &scenario, &learning, 5);
         let step_two = StepTwo::new(&learning, true, 5, 6);
         Behaviour::for_step_two(agent, step_two, &scenario).unwrap()
     }
 
     /// Trial `episode` of `len` steps ending with `end`, its observations' x_g given by `x_g`: its
-    /// statistics, and the gain before its last observation.
-    fn trial(
+    /// statistics, if it ended, and the gain and whether the agent learns before the trial and
+    /// after each of its observations.
+    fn trial_steps(
         b: &mut Behaviour,
         seq: &mut u64,
         episode: u32,
         len: u32,
         end: StepStatus,
         x_g: impl Fn(u32) -> f64,
-    ) -> (LearningStats, [f64; 2]) {
-        let (mut stats, mut before_end) = (None, b.agent().gain());
+    ) -> (Option<LearningStats>, Vec<([f64; 2], bool)>) {
+        let mut stats = None;
+        let mut seen = vec![(b.agent().gain(), b.agent().is_learning())];
         for step in 0..=len {
             let status = if step == len {
                 end
@@ -645,10 +653,23 @@ mod tests {
             let mut o = obs(*seq, episode, step, status, true);
             o.observation.x_g = x_g(step);
             *seq += 1;
-            before_end = b.agent().gain();
             stats = b.step(&o).stats.or(stats);
+            seen.push((b.agent().gain(), b.agent().is_learning()));
         }
-        (stats.expect("the trial ended"), before_end)
+        (stats, seen)
+    }
+
+    /// [`trial_steps`]'s trial: its statistics, and the gain before its last observation.
+    fn trial(
+        b: &mut Behaviour,
+        seq: &mut u64,
+        episode: u32,
+        len: u32,
+        end: StepStatus,
+        x_g: impl Fn(u32) -> f64,
+    ) -> (LearningStats, [f64; 2]) {
+        let (stats, seen) = trial_steps(b, seq, episode, len, end, x_g);
+        (stats.expect("the trial ended"), seen[seen.len() - 2].0)
     }
 
     /// A learning trial that loses the cable ends its policy: the best one is restored before the
@@ -691,19 +712,9 @@ mod tests {
         let best = b.agent().safety().best.unwrap();
         // Calm for 15 steps (learning moves the gain), then out to 0.45 > 0.8 x 0.5.
         let wide = |t: u32| if t < 15 { calm(t) } else { 0.45 };
-        let mut seen = Vec::new();
-        for step in 0..=20 {
-            let status = if step == 20 {
-                StepStatus::TimeLimit
-            } else {
-                StepStatus::Running
-            };
-            let mut o = obs(seq, 1, step, status, true);
-            o.observation.x_g = wide(step);
-            seq += 1;
-            b.step(&o);
-            seen.push((b.agent().gain(), b.agent().is_learning()));
-        }
+        let (_, steps) = trial_steps(&mut b, &mut seq, 1, 20, StepStatus::TimeLimit, wide);
+        // After each observation.
+        let seen = &steps[1..];
         assert_ne!(seen[14].0, best.gain, "learning moved the gain");
         assert!(seen[14].1);
         for (gain, learning) in &seen[15..] {
@@ -721,18 +732,11 @@ mod tests {
     /// actor update of the first learning trial stays within the smallest bound.
     #[test]
     fn the_trust_regions_bound_grows_with_trials_that_keep_the_cable_and_shrinks_on_a_loss() {
-        let (scenario, mut learning) = params();
-        learning.evaluation = config::EvaluationParams {
-            trials: 1,
-            learning_trials: 3,
-        };
-        learning.gpomdp.alpha.sway = 1.0;
-        learning.safety.stability.enabled = false;
-        learning.safety.trust_region.min_action_change = 0.05;
-        learning.safety.trust_region.max_action_change = 0.5;
-        let agent = new_agent(Dof::Sway, Algorithm::Gpomdp, &scenario, &learning, 5);
-        let step_two = StepTwo::new(&learning, true, 5, 6);
-        let mut b = Behaviour::for_step_two(agent, step_two, &scenario).unwrap();
+        let mut b = step_two_sway_with(|l| {
+            l.evaluation.learning_trials = 3;
+            l.safety.trust_region.min_action_change = 0.05;
+            l.safety.trust_region.max_action_change = 0.5;
+        });
         let region = b.agent().guard().trust_region.expect("a trust region");
         let bound = |b: &Behaviour| region.in_force(b.agent().safety().action_change_bound);
         assert_eq!(bound(&b), 0.05);
@@ -741,22 +745,11 @@ mod tests {
         trial(&mut b, &mut seq, 0, 20, StepStatus::TimeLimit, calm);
         assert_eq!(bound(&b), 0.05, "an evaluation taken leaves it");
         // The first learning trial, step by step: no update moves the mean action more than 0.05.
-        let mut largest = 0.0_f64;
-        for step in 0..=20 {
-            let status = if step == 20 {
-                StepStatus::TimeLimit
-            } else {
-                StepStatus::Running
-            };
-            let mut o = obs(seq, 1, step, status, true);
-            o.observation.x_g = calm(step);
-            seq += 1;
-            let before = b.agent().gain();
-            b.step(&o);
-            let after = b.agent().gain();
-            largest =
-                largest.max(region.action_change([after[0] - before[0], after[1] - before[1]]));
-        }
+        let (_, steps) = trial_steps(&mut b, &mut seq, 1, 20, StepStatus::TimeLimit, calm);
+        let largest = steps
+            .windows(2)
+            .map(|w| region.action_change([w[1].0[0] - w[0].0[0], w[1].0[1] - w[0].0[1]]))
+            .fold(0.0, f64::max);
         assert!(
             b.agent().safety().bounded > 0,
             "the learner asked for longer steps"

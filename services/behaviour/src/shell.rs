@@ -206,21 +206,23 @@ pub fn serve(rt: &Runtime, dof: Dof, args: &Args) -> anyhow::Result<()> {
     }
     let mut behaviour = if args.step_two {
         let step_two = StepTwo::new(agent.params(), learning, rt.stream_seed(dof.name()), seed);
-        let p = agent.params();
+        let b = Behaviour::for_step_two(agent, step_two, rt.scenario())
+            .context("cannot build the stability guard from the identified model")?;
+        let (a, p) = (b.agent(), b.agent().params());
+        let bound = a.safety().action_change_bound;
         tracing::info!(
             evaluation_trials = p.evaluation.trials,
             learning_trials = p.evaluation.learning_trials,
             trust_region = p.safety.trust_region.enabled,
-            action_change_bound = agent.safety().action_change_bound,
+            action_change_bound = ?a.guard().trust_region.map(|t| t.in_force(bound)),
             min_action_change = p.safety.trust_region.min_action_change,
             max_action_change = p.safety.trust_region.max_action_change,
             stability_guard = p.safety.stability.enabled,
             rollback = p.safety.rollback.enabled,
-            best = ?agent.safety().best,
+            best = ?a.safety().best,
             "step two: evaluations, the safety guard and keeping the best"
         );
-        Behaviour::for_step_two(agent, step_two, rt.scenario())
-            .context("cannot build the stability guard from the identified model")?
+        b
     } else {
         Behaviour::new(agent)
     };
