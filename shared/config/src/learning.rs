@@ -328,7 +328,7 @@ impl Validate for SafetyParams {
                 join(&k, "min_action_change"),
                 tr.min_action_change,
                 format!(
-                    "must be at most max_action_change ({})",
+                    "must be at most max_action_change ({}); for a fixed bound set the two equal",
                     tr.max_action_change
                 ),
             ));
