@@ -92,7 +92,7 @@ pub fn learning_stats(stamp: Stamp, episode: &EpisodeSummary, agent: &Agent) -> 
         refused: safety.refused,
         rollbacks: safety.rollbacks,
         evaluated: f64::NAN,
-        best_evaluated: safety.best.map_or(f64::NAN, |b| b.evaluated),
+        best_evaluated: safety.reference().map_or(f64::NAN, |b| b.evaluated),
     }
 }
 
@@ -499,18 +499,20 @@ impl Behaviour {
                 );
                 self.restore_best(restore)
             }
-            Verdict::Failed { best } => {
-                let lost = self.agent.safety().evaluation_lost;
+            Verdict::Failed { restore } => {
+                let safety = self.agent.safety();
+                let (lost, start_lost) = (safety.evaluation_lost, safety.start_lost);
                 tracing::warn!(
                     dof = %self.dof(),
                     trial,
                     ?gain,
                     evaluated,
                     lost,
-                    best = best.map(|b| b.evaluated),
-                    "evaluation: the cable was lost; the policy is not a candidate for the best"
+                    start_lost,
+                    restored = restore.map(|b| b.trial),
+                    "evaluation: the cable was lost; the policy is not a candidate for the best (the best pair's policy restored, or before one, the simulation policies' where they lost fewer trials)"
                 );
-                self.restore_best(best)
+                self.restore_best(restore)
             }
         }
     }

@@ -33,7 +33,9 @@
 //! - versions 5 and 6: a trust region of one fixed bound (no `TrustRegionParams::min_action_change`,
 //!   no adapted bound `SafetyState::action_change_bound`); read with the smallest bound equal to
 //!   the largest, so the bound stays as it was.
-//! - version 7: the current format.
+//! - version 7: no start of the session (`SafetyState::start`, `start_lost`); read with the start
+//!   unknown, so that before a best a failed evaluation restores nothing, as it did then.
+//! - version 8: the current format.
 //!
 //! Saving writes a temporary file in the target's directory, syncs it, renames it over the target and
 //! syncs the directory: a crash leaves either the old checkpoint or the new one, never a mix.
@@ -49,7 +51,7 @@ use std::path::{Path, PathBuf};
 /// The first bytes of every checkpoint file.
 pub const MAGIC: [u8; 8] = *b"CTRKCKPT";
 /// The format this code writes, and the newest it reads.
-pub const FORMAT_VERSION: u32 = 7;
+pub const FORMAT_VERSION: u32 = 8;
 /// Magic, version, payload length, CRC.
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 4;
 
@@ -465,6 +467,11 @@ impl Checkpoint {
                 bincode::serde::decode_from_slice(&payload, bincode::config::standard())
                     .map_err(decode_err)?;
             (old.into(), used)
+        } else if version == 7 {
+            let (old, used): (v7::Checkpoint, usize) =
+                bincode::serde::decode_from_slice(&payload, bincode::config::standard())
+                    .map_err(decode_err)?;
+            (old.into(), used)
         } else {
             bincode::serde::decode_from_slice(&payload, bincode::config::standard())
                 .map_err(decode_err)?
@@ -740,6 +747,8 @@ mod v3 {
                 evaluation_cost: PerDof::default(),
                 scale: PerDof::default(),
                 action_change_bound: 0.0,
+                start: None,
+                start_lost: 0,
             }
         }
     }
@@ -859,6 +868,8 @@ mod v6 {
                 evaluation_cost: f.evaluation_cost,
                 scale: f.scale,
                 action_change_bound: 0.0,
+                start: None,
+                start_lost: 0,
             }
         }
     }
@@ -872,6 +883,52 @@ mod v6 {
                 evaluation: p.evaluation,
                 safety: p.safety.into(),
                 step_two: p.step_two,
+            }
+        }
+    }
+}
+
+/// Format version 7: today's parameters; the safety state without the session's start.
+mod v7 {
+    use crate::safety::BestPolicy;
+    use config::PerDof;
+    use serde::{Deserialize, Serialize};
+
+    pub type Checkpoint = super::older::Checkpoint<SafetyState, config::LearningParams>;
+    #[cfg(test)]
+    pub type AgentState = super::older::AgentState<SafetyState, config::LearningParams>;
+
+    #[derive(Clone, Copy, Serialize, Deserialize)]
+    pub struct SafetyState {
+        pub bounded: u64,
+        pub refused: u64,
+        pub rollbacks: u64,
+        pub evaluations: u64,
+        pub best: Option<BestPolicy>,
+        pub evaluation_sum: f64,
+        pub evaluation_trials: u32,
+        pub evaluation_lost: u32,
+        pub evaluation_cost: PerDof<f64>,
+        pub scale: PerDof<f64>,
+        pub action_change_bound: f64,
+    }
+
+    impl From<SafetyState> for crate::safety::SafetyState {
+        fn from(f: SafetyState) -> Self {
+            crate::safety::SafetyState {
+                bounded: f.bounded,
+                refused: f.refused,
+                rollbacks: f.rollbacks,
+                evaluations: f.evaluations,
+                best: f.best,
+                evaluation_sum: f.evaluation_sum,
+                evaluation_trials: f.evaluation_trials,
+                evaluation_lost: f.evaluation_lost,
+                evaluation_cost: f.evaluation_cost,
+                scale: f.scale,
+                action_change_bound: f.action_change_bound,
+                start: None,
+                start_lost: 0,
             }
         }
     }
@@ -1351,6 +1408,72 @@ mod tests {
         assert_eq!(Checkpoint::load(&path).unwrap(), saved);
     }
 
+    /// A file of format 7 (no start of the session in the safety state) loads with the start
+    /// unknown and everything else as saved; the same agents in the current format keep it.
+    #[test]
+    fn a_format_7_checkpoint_loads_with_the_sessions_start_unknown() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.ckpt");
+        let mut saved = both();
+        for s in [saved.sway.as_mut(), saved.yaw.as_mut()]
+            .into_iter()
+            .flatten()
+        {
+            s.safety.start = Some(crate::safety::BestPolicy {
+                gain: [6.5, 3.5],
+                evaluated: -30.1,
+                cost: config::PerDof::both(40.0),
+                trial: 4,
+            });
+            s.safety.start_lost = 1;
+            s.safety.action_change_bound = 0.2;
+            s.safety.rollbacks = 2;
+        }
+        let agent = |s: &AgentState| {
+            let f = s.safety;
+            v7::AgentState {
+                dof: s.dof,
+                params: s.params.clone(),
+                cost: s.cost,
+                state_max: s.state_max,
+                policy: s.policy,
+                learner: s.learner.clone(),
+                steps: s.steps,
+                episodes: s.episodes,
+                safety: v7::SafetyState {
+                    bounded: f.bounded,
+                    refused: f.refused,
+                    rollbacks: f.rollbacks,
+                    evaluations: f.evaluations,
+                    best: f.best,
+                    evaluation_sum: f.evaluation_sum,
+                    evaluation_trials: f.evaluation_trials,
+                    evaluation_lost: f.evaluation_lost,
+                    evaluation_cost: f.evaluation_cost,
+                    scale: f.scale,
+                    action_change_bound: f.action_change_bound,
+                },
+            }
+        };
+        let seven = v7::Checkpoint {
+            sway: saved.sway.as_ref().map(agent),
+            yaw: saved.yaw.as_ref().map(agent),
+        };
+        let c = bincode::config::standard();
+        let bytes = bincode::serde::encode_to_vec(&seven, c).unwrap();
+        fs::write(&path, file_of(7, &bytes)).unwrap();
+        let mut expected = saved.clone();
+        for s in [expected.sway.as_mut(), expected.yaw.as_mut()]
+            .into_iter()
+            .flatten()
+        {
+            (s.safety.start, s.safety.start_lost) = (None, 0);
+        }
+        assert_eq!(Checkpoint::load(&path).unwrap(), expected);
+        saved.save(&path).unwrap();
+        assert_eq!(Checkpoint::load(&path).unwrap(), saved);
+    }
+
     /// A file of format 4 (before step two's learner had parameters of its own) still loads, with
     /// their defaults and everything else as saved.
     #[test]
@@ -1540,7 +1663,7 @@ mod tests {
     fn the_header_is_the_documented_layout() {
         let (_dir, _path, bytes) = saved_bytes();
         assert_eq!(&bytes[..8], b"CTRKCKPT");
-        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 7);
+        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 8);
         let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
         assert_eq!(len as usize, bytes.len() - HEADER_LEN);
         let crc = u32::from_le_bytes(bytes[20..24].try_into().unwrap());

@@ -28,6 +28,10 @@
 //!   best is restored at once (a trial that loses the cable ends early, which can cost a DOF less
 //!   than tracking badly for the whole trial, so the return alone would rank such a policy above a
 //!   safe one), and the best is always a pair whose evaluation kept the cable in every trial.
+//!   Before there is one (the simulation policies lost the cable in their own evaluation), an
+//!   evaluated pair that lost the cable in more trials than the simulation policies did gives way
+//!   to them: they are the only policies known to do better, and a learned pair that loses the
+//!   cable in every trial would otherwise stay in force for evaluation after evaluation.
 //!
 //! **Why the pair, and why its cost as both behaviours see it.** A DOF's return depends on the
 //! other DOF's policy (sway moves the image under yaw's Theta), so each behaviour keeping the best
@@ -335,10 +339,11 @@ pub enum Verdict {
     },
     /// The cable was lost in some trial of the evaluation: the policy is not a candidate for the
     /// best whatever its return, and the best (if one was evaluated, and rollback is on) is
-    /// restored.
+    /// restored; with none, the session's start (the simulation policies) is, when the pair lost
+    /// the cable in more of the evaluation's trials than the start did in its own.
     Failed {
         /// The policy to restore, if any.
-        best: Option<BestPolicy>,
+        restore: Option<BestPolicy>,
     },
 }
 
@@ -365,18 +370,27 @@ impl KeepBest {
     /// ([`SafetyState::evaluation_lost`]) is [`Verdict::Failed`].
     pub fn judge(&self, state: &mut SafetyState, e: &Evaluated) -> Verdict {
         state.evaluations += 1;
-        if state.evaluation_lost > 0 {
-            // Restored, and counted, when the cable was lost (see `fall_back`).
-            return Verdict::Failed {
-                best: self.restorable(state),
-            };
-        }
         let candidate = BestPolicy {
             gain: e.gain,
             evaluated: e.evaluated,
             cost: e.cost,
             trial: e.trial,
         };
+        if state.evaluations == 1 {
+            // The session's first evaluation: the simulation policies, what step two started from.
+            (state.start, state.start_lost) = (Some(candidate), state.evaluation_lost);
+        }
+        if state.evaluation_lost > 0 {
+            // With a best, it was restored, and counted, when the cable was lost (see
+            // `fall_back`); without one, the start is, when the pair lost more than it did.
+            let restore = self.restorable(state).or_else(|| {
+                let start = state.start.filter(|_| self.tolerance.is_some())?;
+                let restore = state.start_lost < state.evaluation_lost;
+                state.rollbacks += restore as u64;
+                restore.then_some(start)
+            });
+            return Verdict::Failed { restore };
+        }
         if !(state.scale.sway > 0.0 && state.scale.yaw > 0.0) {
             // The session's first evaluation judged: its costs weigh the DOFs from now on.
             state.scale = pair_scale(e.cost);
@@ -454,9 +468,20 @@ pub struct SafetyState {
     /// The trust region's adapted bound on the mean action's change ([`TrustRegion::adapted`]; 0
     /// before any: the smallest).
     pub action_change_bound: f64,
+    /// The session's first evaluation judged (the simulation policies on the vehicle): the policy a
+    /// failed evaluation restores when no best has been evaluated and it lost fewer trials...
+    pub start: Option<BestPolicy>,
+    /// ... and the trials of it that lost the cable.
+    pub start_lost: u32,
 }
 
 impl SafetyState {
+    /// The policy a restore falls back to: the best so far, or before one, the session's start
+    /// (`None` before the first evaluation).
+    pub fn reference(&self) -> Option<BestPolicy> {
+        self.best.or(self.start)
+    }
+
     /// Checks that every number is usable (finite where it must be).
     pub fn is_valid(&self) -> bool {
         self.evaluation_sum.is_finite()
@@ -465,9 +490,10 @@ impl SafetyState {
             && [self.scale.sway, self.scale.yaw, self.action_change_bound]
                 .iter()
                 .all(|s| s.is_finite() && *s >= 0.0)
-            && self
-                .best
-                .is_none_or(|b| b.gain.iter().all(|g| g.is_finite()) && !b.evaluated.is_nan())
+            && [self.best, self.start]
+                .iter()
+                .flatten()
+                .all(|b| b.gain.iter().all(|g| g.is_finite()) && !b.evaluated.is_nan())
     }
 }
 
@@ -679,7 +705,7 @@ mod tests {
                 let in_force = match judge.judge(&mut s, e) {
                     Verdict::Best | Verdict::Kept { .. } => e.trial,
                     Verdict::RollBack { best } => best.trial,
-                    Verdict::Failed { best }
+                    Verdict::Failed { restore: best }
                     | Verdict::WorseThanStart {
                         restore: best,
                         dof: _,
@@ -792,7 +818,7 @@ mod tests {
             let trial_of = |v: Verdict| match v {
                 Verdict::Best => None,
                 Verdict::Kept { best } | Verdict::RollBack { best } => Some(best.trial),
-                Verdict::Failed { best }
+                Verdict::Failed { restore: best }
                 | Verdict::WorseThanStart {
                     restore: best,
                     dof: _,
@@ -866,7 +892,7 @@ mod tests {
         s.evaluation_lost = 1;
         assert_eq!(
             judge.judge(&mut s, &ev(4, 1.0, (10.0, 1.0))),
-            Verdict::Failed { best: None }
+            Verdict::Failed { restore: None }
         );
         assert_eq!((s.best, s.rollbacks), (None, 0));
         s.evaluation_lost = 0;
@@ -883,15 +909,79 @@ mod tests {
         s.evaluation_lost = 2;
         assert_eq!(
             judge.judge(&mut s, &ev(24, 3.0, (5.0, 1.0))),
-            Verdict::Failed { best: Some(best) }
+            Verdict::Failed {
+                restore: Some(best)
+            }
         );
         assert_eq!((s.best, s.rollbacks), (Some(best), 1));
         // Rollback off: judged, never restored.
         assert_eq!(
             KeepBest::new(None).judge(&mut s, &ev(24, 3.0, (5.0, 1.0))),
-            Verdict::Failed { best: None }
+            Verdict::Failed { restore: None }
         );
         assert_eq!(KeepBest::new(None).fall_back(&mut s), None);
         assert_eq!((s.best, s.rollbacks), (Some(best), 1));
+    }
+
+    /// Before any pair kept the cable there is no best: a learned pair that loses the cable in more
+    /// of its evaluation's trials than the simulation policies did in theirs gives way to them, one
+    /// that loses as many or fewer does not (nothing known is better), and the first pair that keeps
+    /// the cable becomes the best.
+    #[test]
+    fn a_pair_losing_more_than_the_start_gives_way_to_it() {
+        let judge = KeepBest::new(Some(0.1));
+        let mut s = SafetyState {
+            evaluation_lost: 1,
+            ..SafetyState::default()
+        };
+        let first = ev(4, -30.0, (40.0, 30.0));
+        assert_eq!(
+            judge.judge(&mut s, &first),
+            Verdict::Failed { restore: None }
+        );
+        let start = BestPolicy {
+            gain: first.gain,
+            evaluated: first.evaluated,
+            cost: first.cost,
+            trial: first.trial,
+        };
+        assert_eq!((s.start, s.start_lost), (Some(start), 1));
+        // As many lost: learning goes on from the pair.
+        assert_eq!(
+            judge.judge(&mut s, &ev(14, -20.0, (30.0, 20.0))),
+            Verdict::Failed { restore: None }
+        );
+        assert_eq!(s.rollbacks, 0);
+        // More lost: the start, counted.
+        s.evaluation_lost = 5;
+        assert_eq!(
+            judge.judge(&mut s, &ev(24, -10.0, (12.0, 9.0))),
+            Verdict::Failed {
+                restore: Some(start)
+            }
+        );
+        assert_eq!((s.best, s.rollbacks), (None, 1));
+        // Rollback off: judged, never restored.
+        let mut off = s;
+        assert_eq!(
+            KeepBest::new(None).judge(&mut off, &ev(34, -10.0, (12.0, 9.0))),
+            Verdict::Failed { restore: None }
+        );
+        // The first pair that keeps the cable is the best; the start stays what it was.
+        s.evaluation_lost = 0;
+        assert_eq!(
+            judge.judge(&mut s, &ev(34, -8.0, (9.0, 8.0))),
+            Verdict::Best
+        );
+        assert_eq!((s.start, s.start_lost), (Some(start), 1));
+        // From then on a failed evaluation restores the best, never the start.
+        s.evaluation_lost = 5;
+        let best = s.best.unwrap();
+        assert_eq!(
+            judge.judge(&mut s, &ev(44, -9.0, (10.0, 9.0))),
+            Verdict::Failed {
+                restore: Some(best)
+            }
+        );
     }
 }

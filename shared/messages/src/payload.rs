@@ -550,7 +550,8 @@ pub struct LearningStats {
     /// The mean return of the evaluation this trial closed (NaN when it closed none).
     #[serde(default = "NumberOrNull::missing", with = "NumberOrNull")]
     pub evaluated: f64,
-    /// The best evaluated mean return so far (NaN before the first).
+    /// The evaluated mean return of the policy a rollback restores: the best so far, or before a
+    /// pair kept the cable in a whole evaluation, the simulation policies' (NaN before the first).
     #[serde(default = "NumberOrNull::missing", with = "NumberOrNull")]
     pub best_evaluated: f64,
 }

@@ -201,16 +201,10 @@ impl SeedResult {
         )
     }
 
-    /// The session's evaluation whose pair is the final one (the last evaluation's, or the best
-    /// one it restored), with the row's J_after its returns.
+    /// The session's evaluation whose pair is the final one (the last evaluation's, or the one it
+    /// restored), with the row's J_after its returns.
     pub fn final_pair(&self) -> Option<&CurvePoint> {
-        self.curve.iter().rev().find(|p| {
-            p.gains == self.after_gains
-                && p.lost == 0
-                && Dof::ALL
-                    .iter()
-                    .all(|&d| p.evaluated.get(d).to_bits() == self.after.get(d).to_bits())
-        })
+        final_pair(&self.curve, self.after_gains, self.after)
     }
 
     /// Whether the row's search for `dof`'s limit went on from a policy of the seed.
@@ -283,6 +277,21 @@ pub fn curve(trials: &[TrialResult], initial: PerDof<[f64; 2]>) -> Vec<CurvePoin
     points
 }
 
+/// The evaluation of `curve` whose pair is the final one, `after_gains` with the returns `after`:
+/// the last one, or the one it restored.
+fn final_pair(
+    curve: &[CurvePoint],
+    after_gains: PerDof<[f64; 2]>,
+    after: PerDof<f64>,
+) -> Option<&CurvePoint> {
+    curve.iter().rev().find(|p| {
+        p.gains == after_gains
+            && Dof::ALL
+                .iter()
+                .all(|&d| p.evaluated.get(d).to_bits() == after.get(d).to_bits())
+    })
+}
+
 /// The policies a seed's row evaluated on its set, as candidates the limit must not be below: the
 /// simulation policy, each evaluation of the session, each policy after a learning trial, and the
 /// final one (with its in-force return, the row's `J_after`).
@@ -314,15 +323,9 @@ pub fn candidates(
             lost: p.lost,
         });
     }
-    // The final policy's return in force: the last evaluation's, or where it restored the best,
-    // the best's, which kept the cable (keeping the best never makes a policy that lost it the best).
-    let lost = curve.last().map_or(0, |p| {
-        if p.rolled_back.sway || p.rolled_back.yaw {
-            0
-        } else {
-            p.lost
-        }
-    });
+    // The final policy's return in force and its lost trials: those of the evaluation that
+    // evaluated it (the last one, or the one it restored: the best, or the simulation policies).
+    let lost = final_pair(curve, after_gains, after).map_or(0, |p| p.lost);
     c.push(Candidate {
         name: "step two's final policy".to_owned(),
         gains: after_gains,

@@ -265,7 +265,7 @@ impl TwinWorld {
                             refused: safety.refused,
                             rollbacks: safety.rollbacks,
                             evaluated: f64::NAN,
-                            best_evaluated: safety.best.map_or(f64::NAN, |b| b.evaluated),
+                            best_evaluated: safety.reference().map_or(f64::NAN, |b| b.evaluated),
                             ..Default::default()
                         }
                     })

@@ -32,9 +32,11 @@ pub struct EpisodeRecord {
     pub safety: PerDof<SafetyCounts>,
     /// The mean returns of the evaluation this episode closed (NaN when none).
     pub evaluated: PerDof<f64>,
-    /// Which behaviours restored their best policy after that evaluation.
+    /// Which behaviours restored a policy after that evaluation (the best, or before one, the
+    /// simulation policies).
     pub rolled_back: PerDof<bool>,
-    /// The best evaluated return so far (NaN before the first evaluation).
+    /// The evaluated return of the policy a rollback restores: the best so far, or before one, the
+    /// simulation policies' (NaN before the first evaluation).
     pub best: PerDof<f64>,
 }
 
@@ -170,7 +172,7 @@ impl Episodes {
                         yaw: or_nan(e.evaluated.yaw),
                     }),
                     rolled_back: closed.map_or_else(PerDof::default, |e| e.rolled_back),
-                    // Where the best was restored, it is the return in force after the evaluation.
+                    // Where a policy was restored, its return is the one in force after the evaluation.
                     best: closed.map_or(nan, |e| PerDof {
                         sway: or_nan(e.in_force.sway),
                         yaw: or_nan(e.in_force.yaw),
@@ -260,7 +262,7 @@ impl Episodes {
                     episode,
                     sway = record.rolled_back.sway,
                     yaw = record.rolled_back.yaw,
-                    "the best policy was restored after this evaluation"
+                    "a policy evaluated before was restored after this evaluation (the best, or before one, the simulation policies)"
                 );
             }
             self.done.push(record);
