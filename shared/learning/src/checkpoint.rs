@@ -890,45 +890,25 @@ mod v6 {
 
 /// Format version 7: today's parameters; the safety state without the session's start.
 mod v7 {
-    use crate::safety::BestPolicy;
-    use config::PerDof;
     use serde::{Deserialize, Serialize};
 
     pub type Checkpoint = super::older::Checkpoint<SafetyState, config::LearningParams>;
     #[cfg(test)]
     pub type AgentState = super::older::AgentState<SafetyState, config::LearningParams>;
 
+    /// Format 6's fields, then the adapted bound: bincode writes a nested struct's fields in
+    /// place, so this is format 7's layout.
     #[derive(Clone, Copy, Serialize, Deserialize)]
     pub struct SafetyState {
-        pub bounded: u64,
-        pub refused: u64,
-        pub rollbacks: u64,
-        pub evaluations: u64,
-        pub best: Option<BestPolicy>,
-        pub evaluation_sum: f64,
-        pub evaluation_trials: u32,
-        pub evaluation_lost: u32,
-        pub evaluation_cost: PerDof<f64>,
-        pub scale: PerDof<f64>,
+        pub fixed: super::v6::SafetyState,
         pub action_change_bound: f64,
     }
 
     impl From<SafetyState> for crate::safety::SafetyState {
         fn from(f: SafetyState) -> Self {
             crate::safety::SafetyState {
-                bounded: f.bounded,
-                refused: f.refused,
-                rollbacks: f.rollbacks,
-                evaluations: f.evaluations,
-                best: f.best,
-                evaluation_sum: f.evaluation_sum,
-                evaluation_trials: f.evaluation_trials,
-                evaluation_lost: f.evaluation_lost,
-                evaluation_cost: f.evaluation_cost,
-                scale: f.scale,
                 action_change_bound: f.action_change_bound,
-                start: None,
-                start_lost: 0,
+                ..f.fixed.into()
             }
         }
     }
@@ -1330,6 +1310,22 @@ mod tests {
         }
     }
 
+    /// `f` as formats 5 and 6 keep it (no adapted bound, no start).
+    fn v6_safety(f: &SafetyState) -> v6::SafetyState {
+        v6::SafetyState {
+            bounded: f.bounded,
+            refused: f.refused,
+            rollbacks: f.rollbacks,
+            evaluations: f.evaluations,
+            best: f.best,
+            evaluation_sum: f.evaluation_sum,
+            evaluation_trials: f.evaluation_trials,
+            evaluation_lost: f.evaluation_lost,
+            evaluation_cost: f.evaluation_cost,
+            scale: f.scale,
+        }
+    }
+
     /// `c` as a checkpoint of formats 5 and 6 (the trust region's bound fixed).
     fn v6_of(c: &Checkpoint) -> v6::Checkpoint {
         let agent = |s: &AgentState| {
@@ -1350,18 +1346,7 @@ mod tests {
                 learner: s.learner.clone(),
                 steps: s.steps,
                 episodes: s.episodes,
-                safety: v6::SafetyState {
-                    bounded: f.bounded,
-                    refused: f.refused,
-                    rollbacks: f.rollbacks,
-                    evaluations: f.evaluations,
-                    best: f.best,
-                    evaluation_sum: f.evaluation_sum,
-                    evaluation_trials: f.evaluation_trials,
-                    evaluation_lost: f.evaluation_lost,
-                    evaluation_cost: f.evaluation_cost,
-                    scale: f.scale,
-                },
+                safety: v6_safety(&f),
             }
         };
         v6::Checkpoint {
@@ -1429,37 +1414,30 @@ mod tests {
             s.safety.action_change_bound = 0.2;
             s.safety.rollbacks = 2;
         }
-        let agent = |s: &AgentState| {
-            let f = s.safety;
-            v7::AgentState {
-                dof: s.dof,
-                params: s.params.clone(),
-                cost: s.cost,
-                state_max: s.state_max,
-                policy: s.policy,
-                learner: s.learner.clone(),
-                steps: s.steps,
-                episodes: s.episodes,
-                safety: v7::SafetyState {
-                    bounded: f.bounded,
-                    refused: f.refused,
-                    rollbacks: f.rollbacks,
-                    evaluations: f.evaluations,
-                    best: f.best,
-                    evaluation_sum: f.evaluation_sum,
-                    evaluation_trials: f.evaluation_trials,
-                    evaluation_lost: f.evaluation_lost,
-                    evaluation_cost: f.evaluation_cost,
-                    scale: f.scale,
-                    action_change_bound: f.action_change_bound,
-                },
-            }
+        let agent = |s: &AgentState| v7::AgentState {
+            dof: s.dof,
+            params: s.params.clone(),
+            cost: s.cost,
+            state_max: s.state_max,
+            policy: s.policy,
+            learner: s.learner.clone(),
+            steps: s.steps,
+            episodes: s.episodes,
+            safety: v7::SafetyState {
+                fixed: v6_safety(&s.safety),
+                action_change_bound: s.safety.action_change_bound,
+            },
         };
+        // Format 7 wrote format 6's fields and then the bound, in place.
+        let c = bincode::config::standard();
+        let state = agent(saved.sway.as_ref().unwrap()).safety;
+        let mut flat = bincode::serde::encode_to_vec(state.fixed, c).unwrap();
+        flat.extend(bincode::serde::encode_to_vec(state.action_change_bound, c).unwrap());
+        assert_eq!(bincode::serde::encode_to_vec(state, c).unwrap(), flat);
         let seven = v7::Checkpoint {
             sway: saved.sway.as_ref().map(agent),
             yaw: saved.yaw.as_ref().map(agent),
         };
-        let c = bincode::config::standard();
         let bytes = bincode::serde::encode_to_vec(&seven, c).unwrap();
         fs::write(&path, file_of(7, &bytes)).unwrap();
         let mut expected = saved.clone();
