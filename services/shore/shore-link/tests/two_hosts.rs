@@ -53,6 +53,8 @@ fn demo(args: &[&str]) -> (Report, tempfile::TempDir) {
             "1",
         ])
         .args(args)
+        // The link as cargo built it for this test, in whatever profile the test runs.
+        .env("SHORE_LINK_BIN", env!("CARGO_BIN_EXE_shore-link"))
         .arg("--json")
         .arg(&json)
         .arg("--logs")
