@@ -1276,9 +1276,15 @@ mod tests {
     /// `s` as an older format's agent state: its learning parameters without step two's own, its
     /// safety layer's state `safety`.
     fn legacy<S>(s: &AgentState, safety: S) -> older::AgentState<S> {
+        older_agent(s, v4_params(&s.params), safety)
+    }
+
+    /// `s` as an older format's agent state with the learning parameters `params` and the safety
+    /// layer's state `safety`.
+    fn older_agent<S, P>(s: &AgentState, params: P, safety: S) -> older::AgentState<S, P> {
         older::AgentState {
             dof: s.dof,
-            params: v4_params(&s.params),
+            params,
             cost: s.cost,
             state_max: s.state_max,
             policy: s.policy,
@@ -1328,26 +1334,17 @@ mod tests {
 
     /// `c` as a checkpoint of formats 5 and 6 (the trust region's bound fixed).
     fn v6_of(c: &Checkpoint) -> v6::Checkpoint {
-        let agent = |s: &AgentState| {
-            let (p, f) = (&s.params, s.safety);
-            v6::AgentState {
-                dof: s.dof,
-                params: v6::LearningParams {
-                    policy: p.policy.clone(),
-                    nac: p.nac.clone(),
-                    gpomdp: p.gpomdp.clone(),
-                    evaluation: p.evaluation.clone(),
-                    safety: v6_safety_params(&p.safety),
-                    step_two: p.step_two.clone(),
-                },
-                cost: s.cost,
-                state_max: s.state_max,
-                policy: s.policy,
-                learner: s.learner.clone(),
-                steps: s.steps,
-                episodes: s.episodes,
-                safety: v6_safety(&f),
-            }
+        let agent = |s: &AgentState| -> v6::AgentState {
+            let p = &s.params;
+            let params = v6::LearningParams {
+                policy: p.policy.clone(),
+                nac: p.nac.clone(),
+                gpomdp: p.gpomdp.clone(),
+                evaluation: p.evaluation.clone(),
+                safety: v6_safety_params(&p.safety),
+                step_two: p.step_two.clone(),
+            };
+            older_agent(s, params, v6_safety(&s.safety))
         };
         v6::Checkpoint {
             sway: c.sway.as_ref().map(agent),
@@ -1414,19 +1411,12 @@ mod tests {
             s.safety.action_change_bound = 0.2;
             s.safety.rollbacks = 2;
         }
-        let agent = |s: &AgentState| v7::AgentState {
-            dof: s.dof,
-            params: s.params.clone(),
-            cost: s.cost,
-            state_max: s.state_max,
-            policy: s.policy,
-            learner: s.learner.clone(),
-            steps: s.steps,
-            episodes: s.episodes,
-            safety: v7::SafetyState {
+        let agent = |s: &AgentState| -> v7::AgentState {
+            let safety = v7::SafetyState {
                 fixed: v6_safety(&s.safety),
                 action_change_bound: s.safety.action_change_bound,
-            },
+            };
+            older_agent(s, s.params.clone(), safety)
         };
         // Format 7 wrote format 6's fields and then the bound, in place.
         let c = bincode::config::standard();

@@ -313,6 +313,18 @@ pub struct Evaluated {
     pub cost: PerDof<f64>,
 }
 
+impl From<&Evaluated> for BestPolicy {
+    /// The evaluated policy, as the best or the session's start keeps it.
+    fn from(e: &Evaluated) -> Self {
+        BestPolicy {
+            gain: e.gain,
+            evaluated: e.evaluated,
+            cost: e.cost,
+            trial: e.trial,
+        }
+    }
+}
+
 /// What an evaluation decided.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Verdict {
@@ -370,12 +382,7 @@ impl KeepBest {
     /// ([`SafetyState::evaluation_lost`]) is [`Verdict::Failed`].
     pub fn judge(&self, state: &mut SafetyState, e: &Evaluated) -> Verdict {
         state.evaluations += 1;
-        let candidate = BestPolicy {
-            gain: e.gain,
-            evaluated: e.evaluated,
-            cost: e.cost,
-            trial: e.trial,
-        };
+        let candidate = BestPolicy::from(e);
         if state.evaluations == 1 {
             // The session's first evaluation: the simulation policies, what step two started from.
             (state.start, state.start_lost) = (Some(candidate), state.evaluation_lost);
@@ -939,12 +946,7 @@ mod tests {
             judge.judge(&mut s, &first),
             Verdict::Failed { restore: None }
         );
-        let start = BestPolicy {
-            gain: first.gain,
-            evaluated: first.evaluated,
-            cost: first.cost,
-            trial: first.trial,
-        };
+        let start = BestPolicy::from(&first);
         assert_eq!((s.start, s.start_lost), (Some(start), 1));
         // As many lost: learning goes on from the pair.
         assert_eq!(
