@@ -459,7 +459,10 @@ impl Behaviour {
                 tracing::info!(dof = %self.dof(), trial, ?gain, evaluated, ?cost, "evaluation: the best pair so far");
                 false
             }
-            Verdict::Kept { best } => {
+            Verdict::Kept {
+                best,
+                costlier: None,
+            } => {
                 tracing::info!(
                     dof = %self.dof(),
                     trial,
@@ -469,6 +472,23 @@ impl Behaviour {
                     best = best.evaluated,
                     best_trial = best.trial,
                     "evaluation: the pair is not better than the best, within the tolerance"
+                );
+                false
+            }
+            Verdict::Kept {
+                best,
+                costlier: Some(dof),
+            } => {
+                tracing::info!(
+                    dof = %self.dof(),
+                    trial,
+                    ?gain,
+                    evaluated,
+                    ?cost,
+                    best = best.evaluated,
+                    best_trial = best.trial,
+                    costlier = %dof,
+                    "evaluation: the pair costs {dof} more than the simulation policies did, within the tolerance; it stays in force but is not the best"
                 );
                 false
             }
