@@ -459,10 +459,13 @@ impl Behaviour {
                 tracing::info!(dof = %self.dof(), trial, ?gain, evaluated, ?cost, "evaluation: the best pair so far");
                 false
             }
-            Verdict::Kept {
-                best,
-                costlier: None,
-            } => {
+            Verdict::Kept { best, costlier } => {
+                let why = match costlier {
+                    None => "is not better than the best, within the tolerance".to_string(),
+                    Some(dof) => format!(
+                        "costs {dof} more than the simulation policies did, within the tolerance; it stays in force but is not the best"
+                    ),
+                };
                 tracing::info!(
                     dof = %self.dof(),
                     trial,
@@ -471,24 +474,7 @@ impl Behaviour {
                     ?cost,
                     best = best.evaluated,
                     best_trial = best.trial,
-                    "evaluation: the pair is not better than the best, within the tolerance"
-                );
-                false
-            }
-            Verdict::Kept {
-                best,
-                costlier: Some(dof),
-            } => {
-                tracing::info!(
-                    dof = %self.dof(),
-                    trial,
-                    ?gain,
-                    evaluated,
-                    ?cost,
-                    best = best.evaluated,
-                    best_trial = best.trial,
-                    costlier = %dof,
-                    "evaluation: the pair costs {dof} more than the simulation policies did, within the tolerance; it stays in force but is not the best"
+                    "evaluation: the pair {why}"
                 );
                 false
             }
