@@ -32,6 +32,14 @@ fn read(path: &Path) -> RunRecord {
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
+/// What the supervisor's log of a mesh says of the recorder (its own lines and the supervisor's
+/// about it), to tell why a record was not closed.
+fn recorder_lines(log: &Path) -> String {
+    let text = std::fs::read_to_string(log).unwrap_or_else(|e| format!("{}: {e}", log.display()));
+    let lines: Vec<&str> = text.lines().filter(|l| l.contains("recorder")).collect();
+    lines[lines.len().saturating_sub(40)..].join("\n")
+}
+
 fn close(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-9 * (1.0 + b.abs())
 }
@@ -94,7 +102,12 @@ fn the_two_step_job_runs_and_the_mesh_agrees_with_the_in_process_step_two() {
         *per_topic.entry(m.channel).or_insert(0u64) += 1;
     })
     .unwrap();
-    assert!(flight.cut.is_empty(), "{:?}", flight.cut);
+    assert!(
+        flight.cut.is_empty(),
+        "{:?}\nthe recorder in logs/step-two.log:\n{}",
+        flight.cut,
+        recorder_lines(&out.join("logs/step-two.log"))
+    );
     let totals = recorder::totals(&record)
         .unwrap()
         .expect("the totals of a cleanly stopped recorder");

@@ -3,7 +3,7 @@
 //! target/mcap-venv). It lists the channels and schemas, decodes every message, and validates every
 //! JSON message against the JSON Schema its channel carries.
 
-mod every_channel;
+use crate::every_channel;
 
 use every_channel::{H, STEPS, W};
 use serde_json::{Value, json};

@@ -5,7 +5,7 @@
 //! and is made on purpose by writing the fixture again (`RECORDER_FIXTURE=write`) and committing it.
 //! Descriptions are not part of the view: their wording may change.
 
-mod every_channel;
+use crate::every_channel;
 
 use serde_json::Value;
 use std::path::Path;
