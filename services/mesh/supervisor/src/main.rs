@@ -327,7 +327,7 @@ fn run(args: Args) -> Result<ExitCode> {
             // it writes): its successor would count from nothing and the run would never end.
             let replace = s.cmd.restart && !stop_when.contains(&s.cmd.name);
             let Some(status) = child.try_status().or_else(|| {
-                stuck(&watch.pulse(i), *since, &iox, child.started_pid(), replace).map(
+                stuck(&watch.pulse(i), *since, &iox, child.started_pid(), replace, s.cmd.observer).map(
                     |silent| {
                         tracing::warn!(service = %s.cmd.name, silent_ms = silent.as_millis() as u64, "alive but its heartbeat is silent: killing it");
                         child.kill()
@@ -437,19 +437,20 @@ fn run(args: Args) -> Result<ExitCode> {
 }
 
 /// How long a service that is to be restarted has been silent, if it is stuck: it has beaten since it
-/// started, then missed its heartbeat's deadline [`watch::STUCK_AFTER_MISSES`] times in a row, and
-/// its node is alive (a dead node's exit is
-/// reaped as such).
+/// started, then missed its heartbeat's deadline [`watch::STUCK_AFTER_MISSES`] times in a row
+/// ([`watch::OBSERVER_STUCK_AFTER_MISSES`] for an observer), and its node is alive (a dead node's
+/// exit is reaped as such).
 fn stuck(
     pulse: &watch::Pulse,
     since: Instant,
     iox: &iceoryx2::config::Config,
     pid: u32,
     restart: bool,
+    observer: bool,
 ) -> Option<Duration> {
     let last = pulse.last.filter(|&l| l > since)?;
     pulse.missed?;
-    if pulse.misses < watch::STUCK_AFTER_MISSES {
+    if !watch::silent_too_long(pulse.misses, observer) {
         return None;
     }
     (restart && watch::node_alive(iox, pid) != Some(false)).then(|| last.elapsed())

@@ -34,6 +34,21 @@ pub struct Pulse {
 /// and a stuck service is still replaced within a second.
 pub const STUCK_AFTER_MISSES: u32 = 2;
 
+/// The same for an observer (the flight recorder): no step waits for it, its work includes the
+/// disk's (each commit syncs the file, which a busy disk can hold past a deadline or two), and
+/// killing it splits its record into parts. Ten deadlines: 3 s of silence.
+pub const OBSERVER_STUCK_AFTER_MISSES: u32 = 10;
+
+/// Whether `misses` deadlines missed in a row make a service (an observer or not) stuck.
+pub fn silent_too_long(misses: u32, observer: bool) -> bool {
+    misses
+        >= if observer {
+            OBSERVER_STUCK_AFTER_MISSES
+        } else {
+            STUCK_AFTER_MISSES
+        }
+}
+
 /// The running watch; stops its thread when dropped.
 pub struct Watch {
     pulses: Arc<Mutex<Vec<Pulse>>>,
@@ -242,5 +257,15 @@ mod tests {
             silent_deadlines(Duration::from_secs(5), Duration::ZERO),
             u32::MAX
         );
+    }
+
+    #[test]
+    fn an_observer_is_given_longer_than_a_service_of_the_loop() {
+        assert!(!silent_too_long(STUCK_AFTER_MISSES - 1, false));
+        assert!(silent_too_long(STUCK_AFTER_MISSES, false));
+        // Two missed deadlines, a busy disk's commit: the recorder is not killed for it.
+        assert!(!silent_too_long(STUCK_AFTER_MISSES, true));
+        assert!(!silent_too_long(OBSERVER_STUCK_AFTER_MISSES - 1, true));
+        assert!(silent_too_long(OBSERVER_STUCK_AFTER_MISSES, true));
     }
 }
