@@ -1,6 +1,7 @@
 //! The supervisor's health watch: a thread that looks at every service's heartbeat every 50 ms and
 //! counts the heartbeat's deadlines (`messages::topics::health`) each silence has missed. A missed
-//! deadline wakes the supervisor's loop; after [`STUCK_AFTER_MISSES`] in a row it asks `Node::list` whether the silent
+//! deadline wakes the supervisor's loop; after [`STUCK_AFTER_MISSES`] in a row
+//! ([`OBSERVER_STUCK_AFTER_MISSES`] for an observer) it asks `Node::list` whether the silent
 //! service is alive (then it is stuck and is killed, and restarted like one that died) or already dead
 //! (its exit follows as SIGCHLD).
 
