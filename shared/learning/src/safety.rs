@@ -28,9 +28,10 @@
 //!   never the best: the best, which is restored and kept, costs neither DOF more than the start on
 //!   the evaluation's starts (five starts are few, and a pair a little worse there in one DOF was
 //!   worse on other starts). A policy under which the cable was lost has failed whatever its
-//!   return: the best is restored at once (a trial that loses the cable ends early, which can cost a DOF less
-//!   than tracking badly for the whole trial, so the return alone would rank such a policy above a
-//!   safe one), and the best is always a pair whose evaluation kept the cable in every trial.
+//!   return: the best is restored at once (a trial that loses the cable ends early, which can cost
+//!   a DOF less than tracking badly for the whole trial, so the return alone would rank such a
+//!   policy above a safe one), and the best is always a pair whose evaluation kept the cable in
+//!   every trial.
 //!   Before there is one (the simulation policies lost the cable in their own evaluation), an
 //!   evaluated pair that lost the cable in more trials than the simulation policies did gives way
 //!   to them: they are the only policies known to do better, and a learned pair that loses the
