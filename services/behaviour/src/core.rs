@@ -13,10 +13,14 @@
 //! same evaluation. Each sums it apart, alike: the state costs from the observations both get
 //! ([`learning::state_costs`]), the action costs from its own commands and its partner's
 //! ([`learning::action_costs`]; the partner's come in through [`Behaviour::partner_command`]).
+//!
+//! Where the scenario's `[missed_frames] predict` is above 0, a step-two behaviour answers a missed
+//! frame with the policy's mean action at the state its DOF's identified model predicts, for that
+//! many missed frames in a row, instead of holding still (DESIGN.md, "A frame without the cable").
 
-use crate::step_two::{SAFETY_ENVELOPE, StepTwo, TrialKind, guard};
+use crate::step_two::{SAFETY_ENVELOPE, StepTwo, TrialKind, guard, identified_model};
 use config::{Dof, LearningParams, PerDof, QuadraticCost, Scenario};
-use learning::lqr::LqrError;
+use learning::lqr::{DiscreteSystem, LqrError};
 use learning::{
     Agent, AgentState, Algorithm, EpisodeSummary, Evaluated, Verdict, action_costs, state_costs,
 };
@@ -110,6 +114,44 @@ pub struct Output {
     pub cut: Option<LearningStats>,
 }
 
+/// Step two, frames in which perception missed the cable although it is in view
+/// (`[missed_frames]` of the scenario): the DOF's state as its identified model predicts it from the
+/// last state acted on and the command given there, for at most `frames` missed frames in a row.
+#[derive(Clone, Debug)]
+struct Prediction {
+    model: DiscreteSystem<2, 1>,
+    frames: u32,
+    /// The last state acted on (observed or predicted) and the command given at it.
+    last: Option<([f64; 2], f64)>,
+    /// Missed frames predicted in a row.
+    run: u32,
+}
+
+impl Prediction {
+    /// The state of the next frame, when one may still be predicted; past `frames` in a row nothing
+    /// is, until the next observation.
+    fn next(&mut self) -> Option<[f64; 2]> {
+        let (x, u) = self.last.take()?;
+        if self.run >= self.frames {
+            return None;
+        }
+        self.run += 1;
+        Some(self.model.next(x, [u]))
+    }
+
+    /// The behaviour gave command `u` at state `x`; `observed`: seen by perception.
+    fn acted(&mut self, x: [f64; 2], u: f64, observed: bool) {
+        self.last = Some((x, u));
+        if observed {
+            self.run = 0;
+        }
+    }
+
+    fn forget(&mut self) {
+        (self.last, self.run) = (None, 0);
+    }
+}
+
 /// One learned DOF: its agent and the episode it is in.
 #[derive(Clone, Debug)]
 pub struct Behaviour {
@@ -139,6 +181,10 @@ pub struct Behaviour {
     /// Step two: steps of the evaluation in progress whose partner command was not there (its
     /// action cost taken as 0).
     partner_missing: u32,
+    /// Step two: how a missed frame is answered, when not by holding still.
+    prediction: Option<Prediction>,
+    /// Step two: missed frames of the current trial answered from the prediction.
+    predicted: u32,
 }
 
 impl Behaviour {
@@ -155,6 +201,8 @@ impl Behaviour {
             partner: VecDeque::new(),
             previous: None,
             partner_missing: 0,
+            prediction: None,
+            predicted: 0,
         }
     }
 
@@ -166,6 +214,7 @@ impl Behaviour {
         scenario: &Scenario,
     ) -> Result<Self, LqrError> {
         agent.set_guard(guard(scenario, agent.params(), agent.dof())?);
+        let agent_dof = agent.dof();
         agent.learn_as_on_the_vehicle();
         agent.set_learning(step_two.learning);
         Ok(Behaviour {
@@ -183,6 +232,17 @@ impl Behaviour {
             partner: VecDeque::new(),
             previous: None,
             partner_missing: 0,
+            prediction: (scenario.missed_frames.predict > 0)
+                .then(|| -> Result<Prediction, LqrError> {
+                    Ok(Prediction {
+                        model: identified_model(scenario, agent_dof)?,
+                        frames: scenario.missed_frames.predict,
+                        last: None,
+                        run: 0,
+                    })
+                })
+                .transpose()?,
+            predicted: 0,
         })
     }
 
@@ -296,7 +356,28 @@ impl Behaviour {
                 self.add_to_evaluation_cost(state_costs(&rewards, states));
             }
         }
-        let (action, episode) = behave(&mut self.agent, &obs, status);
+        let predicted = match &mut self.prediction {
+            Some(p) if !obs.found && status == StepStatus::Running => p.next(),
+            _ => None,
+        };
+        let (action, episode) = match predicted {
+            Some(x) => {
+                // Acted on, not observed: nothing is learned from it, as from a frame held still.
+                self.agent.skip();
+                self.predicted += 1;
+                (self.agent.mean_action(x), None)
+            }
+            None => behave(&mut self.agent, &obs, status),
+        };
+        if let Some(p) = &mut self.prediction {
+            match predicted {
+                Some(x) => p.acted(x, action, false),
+                None if obs.found && status == StepStatus::Running => {
+                    p.acted(obs.state(self.agent.dof()), action, true)
+                }
+                None => p.forget(),
+            }
+        }
         self.previous =
             (evaluating && status == StepStatus::Running).then_some((msg.stamp.seq, action));
         Output {
@@ -342,6 +423,10 @@ impl Behaviour {
     fn begin_trial(&mut self, trial: u32) {
         self.left_envelope = false;
         self.previous = None;
+        if let Some(p) = &mut self.prediction {
+            p.forget();
+        }
+        self.predicted = 0;
         let Some(s) = &self.step_two else { return };
         self.kind = s.kind(trial);
         let seed = s.noise_seed(trial, self.kind);
@@ -366,6 +451,9 @@ impl Behaviour {
     /// that lost the cable ends the policy under which it was lost: the best one is restored at
     /// once ([`Behaviour::fall_back`]).
     fn end_trial(&mut self, stamp: Stamp, episode: &EpisodeSummary) -> LearningStats {
+        if self.predicted > 0 {
+            tracing::debug!(dof = %self.dof(), trial = stamp.episode, frames = self.predicted, failed = episode.failed, "missed frames acted on the identified model's prediction");
+        }
         let learning_step_two = self.step_two.as_ref().is_some_and(|s| s.learning);
         if episode.failed && learning_step_two {
             self.fall_back(stamp.episode, "the cable was lost");
@@ -678,6 +766,86 @@ mod tests {
     ) -> (LearningStats, [f64; 2]) {
         let (stats, seen) = trial_steps(b, seq, episode, len, end, x_g);
         (stats.expect("the trial ended"), seen[seen.len() - 2].0)
+    }
+
+    /// With `[missed_frames] predict = 2`, a missed frame is answered with the policy's mean action
+    /// at the state the identified model predicts from the last state acted on and the command
+    /// given there, two in a row at most, then held still; an observation starts the count again.
+    /// Nothing is learned from a predicted frame: the learning trial ends with the gain, return and
+    /// steps of the same trial with its missed frames held still.
+    #[test]
+    fn a_missed_frame_is_acted_on_from_the_identified_models_prediction() {
+        let (mut scenario, mut learning) = params();
+        learning.evaluation = config::EvaluationParams {
+            trials: 1,
+            learning_trials: 1,
+        };
+        learning.gpomdp.alpha.sway = 1.0;
+        learning.safety.stability.enabled = false;
+        let build = |scenario: &Scenario| {
+            let agent = new_agent(Dof::Sway, Algorithm::Gpomdp, scenario, &learning, 5);
+            Behaviour::for_step_two(agent, StepTwo::new(&learning, true, 5, 6), scenario).unwrap()
+        };
+        let held = build(&scenario);
+        scenario.missed_frames.predict = 2;
+        let model = identified_model(&scenario, Dof::Sway).unwrap();
+        let predicting = build(&scenario);
+        // Trial 0 is an evaluation, trial 1 a learning trial; steps 3 to 5 and 8 are missed.
+        let missed = |step: u32| (3..=5).contains(&step) || step == 8;
+        // Each step's observation (as if found), command, and the gain in force after it.
+        let run = |mut b: Behaviour| {
+            let (mut steps, mut stats) = (Vec::new(), Vec::new());
+            let mut seq = 0;
+            for episode in 0..2 {
+                for step in 0..=10 {
+                    let status = if step == 10 {
+                        StepStatus::TimeLimit
+                    } else {
+                        StepStatus::Running
+                    };
+                    let out = b.step(&obs(seq, episode, step, status, !missed(step)));
+                    let seen = obs(seq, episode, step, status, true).observation();
+                    steps.push((seen.state(Dof::Sway), out.command.value, b.agent().gain()));
+                    stats.extend(out.stats);
+                    seq += 1;
+                }
+            }
+            (b, steps, stats)
+        };
+        let (held, held_steps, held_stats) = run(held);
+        let (predicting, steps, stats) = run(predicting);
+        // The policy's mean action at `x` under the gain in force after step `before`.
+        let mean = |s: &[([f64; 2], f64, [f64; 2])], before: usize, x: [f64; 2]| {
+            let g = s[before].2;
+            (g[0] * x[0] + g[1] * x[1]).clamp(-1.0, 1.0)
+        };
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        for trial in 0..2 {
+            let s = &steps[trial * 11..(trial + 1) * 11];
+            let x3 = model.next(s[2].0, [s[2].1]);
+            let x4 = model.next(x3, [s[3].1]);
+            assert!(close(s[3].1, mean(s, 2, x3)), "trial {trial}: {s:?}");
+            assert!(close(s[4].1, mean(s, 3, x4)), "trial {trial}: {s:?}");
+            assert!(s[3].1 != 0.0 && s[4].1 != 0.0);
+            assert_eq!(
+                s[5].1, 0.0,
+                "trial {trial}: a third missed frame in a row is held still"
+            );
+            let x8 = model.next(s[7].0, [s[7].1]);
+            assert!(
+                close(s[8].1, mean(s, 7, x8)),
+                "trial {trial}: counted again"
+            );
+            let h = &held_steps[trial * 11..(trial + 1) * 11];
+            assert!((0..11).filter(|&k| missed(k as u32)).all(|k| h[k].1 == 0.0));
+        }
+        assert_eq!(predicting.agent().gain(), held.agent().gain());
+        assert_ne!(predicting.agent().gain(), learning.policy.initial_gain.sway);
+        let summary = |s: &[LearningStats]| -> Vec<(f64, u32)> {
+            s.iter().map(|s| (s.episode_return, s.steps)).collect()
+        };
+        assert_eq!(summary(&stats), summary(&held_stats));
+        assert_eq!(stats.len(), 2);
     }
 
     /// A learning trial that loses the cable ends its policy: the best one is restored before the

@@ -29,8 +29,9 @@ pub use learning::{
 };
 pub use pilot::{ACRO_YAW_P_DEFAULT, FULL_STICK_CDEG, PilotFractions, PilotMode, PilotParams};
 pub use scenario::{
-    CableParams, CameraParams, DofModel, MAX_THRUSTERS, ModelParams, ObservationLimits, PoolParams,
-    QuadraticCost, ResetParams, Rewards, Scenario, SurgeParams, ThrusterParams, Thrusters, Timing,
+    CableParams, CameraParams, DofModel, MAX_THRUSTERS, MissedFrames, ModelParams,
+    ObservationLimits, PoolParams, QuadraticCost, ResetParams, Rewards, Scenario, SurgeParams,
+    ThrusterParams, Thrusters, Timing,
 };
 pub use twin::{
     AsymmetryParams, CurrentParams, DampingParams, DeadBandParams, DofDamping, DropParams,

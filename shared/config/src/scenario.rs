@@ -14,6 +14,7 @@ pub struct Scenario {
     pub pool: PoolParams,
     pub reset: ResetParams,
     pub observation: ObservationLimits,
+    pub missed_frames: MissedFrames,
     pub reward: Rewards,
     pub surge: SurgeParams,
     pub thrusters: Thrusters,
@@ -58,6 +59,7 @@ impl Validate for Scenario {
         self.pool.validate(&join(key, "pool"))?;
         self.reset.validate(&join(key, "reset"))?;
         self.observation.validate(&join(key, "observation"))?;
+        self.missed_frames.validate(&join(key, "missed_frames"))?;
         self.reward.validate(&join(key, "reward"))?;
         self.surge.validate(&join(key, "surge"))?;
         self.thrusters.validate(&join(key, "thrusters"))?;
@@ -344,6 +346,25 @@ impl Validate for ObservationLimits {
     fn validate(&self, key: &str) -> Result<(), Invalid> {
         positive(key, "x_g_rate_max", self.x_g_rate_max)?;
         positive(key, "theta_rate_max", self.theta_rate_max)
+    }
+}
+
+/// What a step-two behaviour does in a frame in which perception missed the cable although it is
+/// in view. Holding still lets the vehicle coast: with images, a policy that swings the cable fast
+/// across the image can miss it for a second or two as it crosses the centre, and drift on to the
+/// other edge, where the cable is lost.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MissedFrames {
+    /// Missed frames in a row in which the behaviour acts on its DOF's state as the identified model
+    /// predicts it from the last observed state and the commands given since (learning nothing
+    /// from them); after them, and with 0, it holds still.
+    pub predict: u32,
+}
+
+impl Validate for MissedFrames {
+    fn validate(&self, key: &str) -> Result<(), Invalid> {
+        in_range(key, "predict", f64::from(self.predict), 0.0, 50.0)
     }
 }
 

@@ -89,6 +89,17 @@ fn an_out_of_range_value_is_refused_with_file_key_and_value() {
     assert_eq!(invalid.key, "safety.trust_region.min_action_change");
     assert_eq!(invalid.value, "0.2");
     assert!(err.to_string().contains("max_action_change (0.1)"), "{err}");
+
+    // More missed frames predicted than a prediction of the identified model is worth.
+    let err = config::parse::<Scenario>("[missed_frames]\npredict = 200\n", Path::new("s.toml"))
+        .unwrap_err();
+    let ConfigError::Invalid { invalid, .. } = &err else {
+        panic!("{err}")
+    };
+    assert_eq!(
+        (invalid.key.as_str(), invalid.value.as_str()),
+        ("missed_frames.predict", "200")
+    );
 }
 
 #[test]

@@ -8,7 +8,7 @@
 //!
 //! None of this runs per step; it is for tests, reports and initial gains.
 
-use nalgebra::{DMatrix, SMatrix};
+use nalgebra::{DMatrix, SMatrix, SVector};
 
 /// Why a reference controller could not be computed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -49,6 +49,13 @@ pub struct DiscreteSystem<const S: usize, const M: usize> {
     pub a: SMatrix<f64, S, S>,
     /// Input matrix.
     pub b: SMatrix<f64, S, M>,
+}
+
+impl<const S: usize, const M: usize> DiscreteSystem<S, M> {
+    /// The state after one period from `x` under the input `u`: `a x + b u`.
+    pub fn next(&self, x: [f64; S], u: [f64; M]) -> [f64; S] {
+        (self.a * SVector::from(x) + self.b * SVector::from(u)).into()
+    }
 }
 
 /// A discounted LQR solution.
