@@ -214,7 +214,7 @@ impl Behaviour {
         scenario: &Scenario,
     ) -> Result<Self, LqrError> {
         agent.set_guard(guard(scenario, agent.params(), agent.dof())?);
-        let agent_dof = agent.dof();
+        let dof = agent.dof();
         agent.learn_as_on_the_vehicle();
         agent.set_learning(step_two.learning);
         Ok(Behaviour {
@@ -235,7 +235,7 @@ impl Behaviour {
             prediction: (scenario.missed_frames.predict > 0)
                 .then(|| -> Result<Prediction, LqrError> {
                     Ok(Prediction {
-                        model: identified_model(scenario, agent_dof)?,
+                        model: identified_model(scenario, dof)?,
                         frames: scenario.missed_frames.predict,
                         last: None,
                         run: 0,
