@@ -10,21 +10,14 @@
 //!
 //! `cargo run --release -p trainer --example lost_cables -- BENCH.json TWIN.toml CONFIG
 //! sim_gains|after_gains [SEED]` (from the repository).
-use config::{Eyes, PerDof};
+use config::Eyes;
 use std::path::Path;
 use trainer::evaluation::policy_checkpoint;
+use trainer::step_two_bench::BenchFile;
 use trainer::twin_world::{Mode, TwinWorld};
 
 /// Trace points shown before a lost trial's end: 8 s at the 0.2 s sample time.
 const SHOWN: usize = 40;
-
-fn gains(v: &serde_json::Value) -> PerDof<[f64; 2]> {
-    let g = |k: &str| [v[k][0].as_f64().unwrap(), v[k][1].as_f64().unwrap()];
-    PerDof {
-        sway: g("sway"),
-        yaw: g("yaw"),
-    }
-}
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -32,28 +25,32 @@ fn main() {
         eprintln!("usage: lost_cables BENCH.json TWIN.toml CONFIG sim_gains|after_gains [SEED]");
         std::process::exit(2);
     }
-    let bench: serde_json::Value =
+    let bench: BenchFile =
         serde_json::from_str(&std::fs::read_to_string(&args[1]).expect("the benchmark's JSON"))
             .expect("a step-two benchmark's JSON");
     let twin: config::TwinParams = config::load(Path::new(&args[2])).expect("the twin");
     let setup = trainer::Setup::load(Path::new(&args[3]), config::Preset::Default)
         .expect("the configuration directory");
-    let pair = args[4].as_str();
+    let after = match args[4].as_str() {
+        "sim_gains" => false,
+        "after_gains" => true,
+        other => panic!("the pair is sim_gains or after_gains, not {other}"),
+    };
     let only: Option<u64> = args.get(5).map(|s| s.parse().expect("a seed"));
     let sc = &setup.scenario;
-    let seeds: Vec<&serde_json::Value> = bench["seeds"]
-        .as_array()
-        .expect("seeds")
+    let seeds: Vec<_> = bench
+        .seeds
         .iter()
-        .filter(|s| only.is_none_or(|o| s["seed"].as_u64() == Some(o)))
+        .filter(|s| only.is_none_or(|o| s.seed == o))
         .collect();
     let rows = trainer::experiment::parallel_map(
         seeds.len(),
         &trainer::progress::Progress::hidden(),
         |k| {
             let s = seeds[k];
-            let seed = s["seed"].as_u64().unwrap();
-            let c = policy_checkpoint(sc, &setup.learning, gains(&s[pair]));
+            let seed = s.seed;
+            let gains = if after { s.after_gains } else { s.sim_gains };
+            let c = policy_checkpoint(sc, &setup.learning, gains);
             let (mut lost, mut returns, mut traces) = (0, [0.0; 2], String::new());
             for set in 0..5 {
                 let set_seed = match set {
